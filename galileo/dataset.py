@@ -1,0 +1,154 @@
+"""Rendered Physics-101-style ramp videos with ground truth (`galileo dataset`).
+
+Presets:
+* demo  - the app's default video: a wooden block sliding down the 20 degree ramp into
+          a cardboard box.
+* small - 20 videos: 10 objects (10 materials) each filmed at 10 and 20 degrees; for tests.
+* full  - 150 videos: the whole catalogue of 75 objects (15 materials, 4-6 objects each)
+          each filmed at 10 and 20 degrees, targets cycling cardboard / foam / none.
+
+Each video folder holds video.mp4 (H.264, 640x480, 30 fps), scene.json (everything to
+simulate it and its camera) and truth.json (latents and the simulated trajectory).
+The output folder also gets index.json listing the videos. Deterministic per seed.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from .jsonio import write_json
+from .materials import MATERIALS, MATERIALS_BY_NAME, CatalogueObject, catalogue, sample_target
+from .physics import Simulator
+from .scene import Ramp, Scene, SceneObject, default_camera
+from .shapes import Shape
+
+PRESETS = ("demo", "small", "full")
+TARGET_CYCLE = ("cardboard", "foam", "none")
+FPS = 30.0
+MIN_DURATION_S, MAX_DURATION_S, TAIL_S = 2.0, 4.0, 0.5
+REST_SPEED_MPS = 0.003
+
+
+@dataclass(frozen=True)
+class VideoSpec:
+    name: str
+    obj: CatalogueObject
+    angle_deg: float
+    target: str  # cardboard | foam | none
+    seed: int
+
+
+def _demo_object() -> CatalogueObject:
+    return CatalogueObject("wooden block", 0, Shape("box", (0.07, 0.05, 0.05)), 0.16, 0.22)
+
+
+def plan(preset: str, seed: int = 0) -> list[VideoSpec]:
+    """The videos a preset renders (names, objects, angles, targets, per-video seeds)."""
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; expected one of {', '.join(PRESETS)}")
+    if preset == "demo":
+        return [VideoSpec("demo", _demo_object(), 20.0, "cardboard", seed)]
+    objs = catalogue(seed)
+    if preset == "small":
+        # one object from each of 10 materials, spread over the friction range
+        picks = ["metal coin", "metal pole", "porcelain", "plastic block", "plastic ring",
+                 "wooden block", "hollow wood", "plastic toy", "dough", "rubber"]
+        objs = [next(o for o in objs if o.material == m) for m in picks]
+    specs = []
+    for i, obj in enumerate(objs):
+        target = TARGET_CYCLE[i % 3] if preset == "full" else ("none" if i % 5 == 4 else TARGET_CYCLE[i % 2])
+        for angle in (20.0, 10.0):
+            slug = obj.material.replace(" ", "-")
+            specs.append(VideoSpec(f"{len(specs):03d}_{slug}{obj.index}_{int(angle)}deg_{target}",
+                                   obj, angle, target, int(np.random.SeedSequence([seed, len(specs)]).generate_state(1)[0])))
+    return specs
+
+
+def scene_for(spec: VideoSpec) -> Scene:
+    """The scene of a planned video (camera frame count still to be set)."""
+    rng = np.random.default_rng(spec.seed)
+    offset = int(rng.integers(-5, 6))
+    ramp_obj = SceneObject("ramp_object", "ramp", spec.obj.shape, spec.obj.mass_kg, spec.obj.friction,
+                           material=spec.obj.material, offset_units=offset)
+    objects = [ramp_obj]
+    if spec.target != "none":
+        shape, mass, friction = sample_target(spec.target, rng)
+        objects.append(SceneObject("target", "target", shape, mass, friction, material=spec.target,
+                                   kind=spec.target, distance_m=float(rng.uniform(0.08, 0.14))))
+    scene = Scene(Ramp(angle_deg=spec.angle_deg), tuple(objects), camera=default_camera(FPS))
+    scene.validate()
+    return scene
+
+
+def video_length(scene: Scene) -> int:
+    """Frames until every object has been at rest for TAIL_S (within [MIN, MAX] duration)."""
+    max_frames = int(MAX_DURATION_S * FPS) + 1
+    traj = Simulator(scene).run(max_frames, fps=FPS)
+    speed = np.linalg.norm(traj.velocity_mps, axis=2).max(axis=0)
+    moving = np.nonzero(speed > REST_SPEED_MPS)[0]
+    last = int(moving[-1]) if len(moving) else 0
+    n = last + 1 + int(TAIL_S * FPS)
+    return int(np.clip(n, int(MIN_DURATION_S * FPS) + 1, max_frames))
+
+
+def truth_json(scene: Scene, spec: VideoSpec, traj) -> dict:
+    ro = scene.ramp_object
+    latents = {"m1_kg": ro.mass_kg, "k1": ro.friction, "shape1": ro.shape.to_json(),
+               "offset_units": ro.offset_units, "material": ro.material, "angle_deg": scene.ramp.angle_deg,
+               "target": spec.target}
+    if scene.target is not None:
+        t = scene.target
+        latents.update({"m2_kg": t.mass_kg, "k2": t.friction, "shape2": t.shape.to_json()})
+    return {"latents": latents, "trajectory": traj.to_json()}
+
+
+def render_one(spec: VideoSpec, out_dir: str) -> dict:
+    """Render one video folder; returns its index entry."""
+    from .render import Look, render_to_video
+
+    folder = Path(out_dir) / spec.name
+    scene = scene_for(spec)
+    n = video_length(scene)
+    scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, n_frames=n))
+    rng = np.random.default_rng([spec.seed, 1])
+    traj = render_to_video(scene, folder / "video.mp4", n, look=Look.random(rng), texture_seed=spec.seed)
+    scene.save(folder / "scene.json")
+    write_json(folder / "truth.json", truth_json(scene, spec, traj), indent=None)
+    return {"name": spec.name, "material": spec.obj.material, "object": f"{spec.obj.material}#{spec.obj.index}",
+            "angle_deg": spec.angle_deg, "target": spec.target, "n_frames": n}
+
+
+def build(preset: str, out: str | Path, seed: int = 0, workers: int | None = None, progress: bool = True) -> list[dict]:
+    """Render a preset into `out`; returns the index (also written to out/index.json)."""
+    specs = plan(preset, seed)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    workers = max(1, min(workers or os.cpu_count() or 1, len(specs)))
+    bar = tqdm(total=len(specs), desc=f"rendering {preset}", unit="video", disable=not progress)
+    entries: list[dict] = []
+    if workers == 1:
+        for s in specs:
+            entries.append(render_one(s, str(out)))
+            bar.update()
+    else:
+        with ProcessPoolExecutor(workers) as pool:
+            for e in pool.map(render_one, specs, [str(out)] * len(specs)):
+                entries.append(e)
+                bar.update()
+    bar.close()
+    write_json(out / "index.json", {"preset": preset, "seed": seed, "videos": entries})
+    return entries
+
+
+def material_table() -> list[dict]:
+    return [{"name": m.name, "density_kgpm3": m.density_kgpm3, "friction": m.friction,
+             "shapes": sorted({s[0] for s in m.shapes}), "n_objects": m.n_objects} for m in MATERIALS]
+
+
+__all__ = ["PRESETS", "VideoSpec", "plan", "scene_for", "build", "render_one", "MATERIALS_BY_NAME", "material_table"]

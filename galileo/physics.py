@@ -1,0 +1,269 @@
+"""Physics: the scene simulated forward in Bullet (pybullet, DIRECT mode).
+
+One pybullet client per process. The world is built once for a scene's geometry and
+reset with restoreState between simulations; only masses, frictions, restitutions and
+the ramp object's start offset change between runs, so a proposal in MCMC costs one
+restore and the steps, never a rebuild.
+
+Friction semantics: Bullet combines the two bodies' coefficients by multiplying them.
+The ramp and the ground have friction 1, so an object's `friction` is exactly its
+Coulomb coefficient against the ramp and the ground. Between two objects the
+coefficient is the product k1 * k2 (and the restitution the product e1 * e2).
+Linear and angular damping are 0 (Bullet's default 0.04 would slow a sliding block by
+about 2% against Newton); sleeping is disabled and a reset drops the previous run's
+contacts, so a reused world reproduces a freshly built one bit for bit.
+"""
+from __future__ import annotations
+
+import atexit
+import math
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from .bullet import pb
+import trimesh
+
+from .jsonio import read_json, write_json
+from .errors import GalileoError
+from .scene import LATENTS, Scene, SceneObject
+from .shapes import render_mesh, torus_convex_parts
+
+GROUND_SIZE_M = (8.0, 4.0, 0.1)
+
+
+@dataclass
+class Trajectory:
+    """Per-frame centre-of-mass positions (m) and velocities (m/s) in the world frame."""
+    fps: float
+    names: list[str]
+    position_m: np.ndarray    # (n_objects, n_frames, 3)
+    velocity_mps: np.ndarray  # (n_objects, n_frames, 3)
+
+    @property
+    def n_frames(self) -> int:
+        return self.position_m.shape[1]
+
+    @property
+    def time_s(self) -> np.ndarray:
+        return np.arange(self.n_frames) / self.fps
+
+    def to_json(self) -> dict:
+        return {"fps": self.fps, "time_s": self.time_s.tolist(),
+                "objects": [{"name": n, "position_m": self.position_m[i].tolist(),
+                             "velocity_mps": self.velocity_mps[i].tolist()} for i, n in enumerate(self.names)]}
+
+    @classmethod
+    def from_json(cls, d: dict) -> "Trajectory":
+        try:
+            objs = d["objects"]
+            return cls(float(d["fps"]), [o["name"] for o in objs],
+                       np.array([o["position_m"] for o in objs], float).reshape(len(objs), -1, 3),
+                       np.array([o["velocity_mps"] for o in objs], float).reshape(len(objs), -1, 3))
+        except (KeyError, TypeError, ValueError) as e:
+            raise GalileoError(f"malformed trajectory JSON: {e}") from None
+
+    def save(self, path: str | Path) -> None:
+        write_json(path, self.to_json(), indent=None)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Trajectory":
+        return cls.from_json(read_json(path, "trajectory file"))
+
+
+# -- the process's single pybullet client -----------------------------------------------
+
+_client: int | None = None
+_built: "_World | None" = None
+_mesh_dir: Path | None = None
+
+
+def _get_client() -> int:
+    global _client
+    if _client is None or not pb.isConnected(_client):
+        _client = pb.connect(pb.DIRECT)
+    return _client
+
+
+def _scratch_dir() -> Path:
+    global _mesh_dir
+    if _mesh_dir is None:
+        _mesh_dir = Path(tempfile.mkdtemp(prefix="galileo-meshes-"))
+        atexit.register(shutil.rmtree, _mesh_dir, ignore_errors=True)
+    return _mesh_dir
+
+
+def _collision_shape(obj: SceneObject, cid: int) -> int:
+    sx, sy, sz = obj.shape.size_m
+    if obj.shape.type == "box":
+        return pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[sx / 2, sy / 2, sz / 2], physicsClientId=cid)
+    if obj.shape.type == "cylinder":
+        # Bullet's cylinder runs along z; ours lies along x
+        q = pb.getQuaternionFromEuler([0, math.pi / 2, 0])
+        return pb.createCollisionShape(pb.GEOM_CYLINDER, radius=sy / 2, height=sx,
+                                       collisionFrameOrientation=q, physicsClientId=cid)
+    files = []
+    d = _scratch_dir()
+    for i, pts in enumerate(torus_convex_parts(obj.shape)):
+        f = d / f"torus_{sx:.6f}_{sz:.6f}_{i}.obj"
+        if not f.exists():
+            trimesh.convex.convex_hull(pts).export(f)
+        files.append(str(f))
+    n = len(files)
+    return pb.createCollisionShapeArray([pb.GEOM_MESH] * n, fileNames=files, meshScales=[[1, 1, 1]] * n,
+                                        physicsClientId=cid)
+
+
+def _visual_shape(obj: SceneObject, cid: int) -> int:
+    m = render_mesh(obj.shape)
+    return pb.createVisualShape(pb.GEOM_MESH, vertices=m.vertices.tolist(), indices=m.indices.tolist(),
+                                uvs=m.uvs.tolist(), normals=m.normals.tolist(), physicsClientId=cid)
+
+
+class _World:
+    """Bodies of one scene geometry in the process's client, with a saved initial state."""
+
+    def __init__(self, scene: Scene, visual: bool):
+        self.key = (scene.geometry_key(), visual)
+        cid = self.cid = _get_client()
+        pb.resetSimulation(physicsClientId=cid)
+        pb.setPhysicsEngineParameter(fixedTimeStep=1.0 / scene.sim_hz, numSubSteps=0,
+                                     deterministicOverlappingPairs=1, physicsClientId=cid)
+        pb.setGravity(0, 0, -scene.gravity_mps2, physicsClientId=cid)
+        gx, gy, gz = GROUND_SIZE_M
+        ramp = scene.ramp
+
+        def static_box(half, pos, orn):
+            col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=cid)
+            vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=cid) if visual else -1
+            b = pb.createMultiBody(0, col, vis, basePosition=list(pos), baseOrientation=list(orn),
+                                   physicsClientId=cid)
+            pb.changeDynamics(b, -1, lateralFriction=1.0, restitution=1.0, rollingFriction=0.0,
+                              spinningFriction=0.0, physicsClientId=cid)
+            return b
+
+        self.ground = static_box([gx / 2, gy / 2, gz / 2], [0, 0, -gz / 2], [0, 0, 0, 1])
+        centre = -(ramp.length_m / 2) * ramp.downhill - (ramp.thickness_m / 2) * ramp.normal
+        self.ramp = static_box([ramp.length_m / 2, ramp.width_m / 2, ramp.thickness_m / 2], centre,
+                               ramp.orientation_xyzw)
+        self.backdrop = None
+        if visual:  # a back wall for the camera to see behind the scene (render only, no collision)
+            half = [3.0, 0.01, 1.5]
+            vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=cid)
+            self.backdrop = pb.createMultiBody(0, -1, vis, basePosition=[0, gy / 2, 1.0], physicsClientId=cid)
+        self.bodies = []
+        self.inertia_per_kg = []
+        for i, obj in enumerate(scene.objects):
+            pos, orn = scene.initial_pose(i)
+            b = pb.createMultiBody(obj.mass_kg, _collision_shape(obj, cid),
+                                   _visual_shape(obj, cid) if visual else -1,
+                                   basePosition=pos.tolist(), baseOrientation=list(orn), physicsClientId=cid)
+            pb.changeDynamics(b, -1, linearDamping=0.0, angularDamping=0.0, rollingFriction=0.0,
+                              spinningFriction=0.0, activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING,
+                              physicsClientId=cid)
+            self.bodies.append(b)
+            self.inertia_per_kg.append(obj.shape.inertia_per_kg())
+        self.state = pb.saveState(physicsClientId=cid)
+
+
+class Simulator:
+    """Simulates one scene; `run` may be called many times with different latents.
+
+    >>> sim = Simulator(scene)
+    >>> traj = sim.run(90, {"m1_kg": 0.3, "k1": 0.25})
+    """
+
+    def __init__(self, scene: Scene, *, visual: bool = False):
+        self.scene = scene
+        self.visual = visual
+        self._world: _World | None = None
+        self.steps_per_frame: int | None = None
+
+    @property
+    def world(self) -> _World:
+        global _built
+        key = (self.scene.geometry_key(), self.visual)
+        if _built is None or _built.key != key or not pb.isConnected(_built.cid):
+            _built = _World(self.scene, self.visual)
+        self._world = _built
+        return _built
+
+    def reset(self, values: dict[str, float] | None = None) -> _World:
+        """Restore the initial state and apply the scene's (or the given) latents."""
+        w = self.world
+        cid = w.cid
+        pb.restoreState(w.state, physicsClientId=cid)
+        # restoreState leaves the previous run's contact manifolds in place and their cached
+        # impulses warm-start the solver, so a reused world would drift (~0.2 mm) from a fresh
+        # one. Setting a body's collision filter re-adds it to the broadphase, which drops its
+        # manifolds; doing so for every body in creation order keeps the world's object order
+        # that of a fresh build. Group 1, mask -1 (all) are Bullet's defaults for dynamic bodies.
+        for b in w.bodies:
+            pb.setCollisionFilterGroupMask(b, -1, 1, -1, physicsClientId=cid)
+        scene = self.scene
+        values = values or {}
+        for i, (obj, b) in enumerate(zip(scene.objects, w.bodies)):
+            n = str(i + 1)
+            mass = values.get("m" + n + "_kg", obj.mass_kg)
+            pb.changeDynamics(b, -1, mass=mass, localInertiaDiagonal=(mass * w.inertia_per_kg[i]).tolist(),
+                              lateralFriction=values.get("k" + n, obj.friction),
+                              restitution=values.get("e" + n, obj.restitution), physicsClientId=cid)
+            if i == 0:
+                # The saved state holds the ramp object at the offset the world was built with
+                # (the offset is not part of the geometry key), so always place it; placing it
+                # even when the offset matches keeps the pose bit-identical to a moved one
+                # (createMultiBody stores a quaternion that differs in the last bit).
+                offset = int(round(values.get("offset_units", obj.offset_units)))
+                placed = scene if offset == obj.offset_units else scene.with_values({"offset_units": offset})
+                pos, orn = placed.initial_pose(0)
+                pb.resetBasePositionAndOrientation(b, pos.tolist(), orn, physicsClientId=cid)
+        return w
+
+    def run(self, n_frames: int, values: dict[str, float] | None = None, fps: float | None = None,
+            on_frame: Callable[[int, np.ndarray, np.ndarray], bool] | None = None) -> Trajectory:
+        """Simulate `n_frames` frames (frame 0 is t = 0) at `fps` (default: the camera's, else 30).
+
+        `on_frame(frame, position_m, velocity_mps)` may return True to stop early; the
+        trajectory then holds the frames simulated so far.
+        """
+        scene = self.scene
+        fps = fps or (scene.camera.fps if scene.camera else 30.0)
+        spf = scene.sim_hz / fps
+        if abs(spf - round(spf)) > 1e-9:
+            raise GalileoError(f"sim_hz {scene.sim_hz} is not a multiple of fps {fps}")
+        spf = int(round(spf))
+        w = self.reset(values)
+        cid, bodies = w.cid, w.bodies
+        n_obj = len(bodies)
+        pos = np.empty((n_obj, n_frames, 3))
+        vel = np.empty((n_obj, n_frames, 3))
+        get_pose, get_vel, step = pb.getBasePositionAndOrientation, pb.getBaseVelocity, pb.stepSimulation
+        done = n_frames
+        for f in range(n_frames):
+            if f:
+                for _ in range(spf):
+                    step(physicsClientId=cid)
+            for i, b in enumerate(bodies):
+                pos[i, f] = get_pose(b, physicsClientId=cid)[0]
+                vel[i, f] = get_vel(b, physicsClientId=cid)[0]
+            if on_frame is not None and on_frame(f, pos[:, f], vel[:, f]):
+                done = f + 1
+                break
+        return Trajectory(fps, [o.name for o in scene.objects], pos[:, :done], vel[:, :done])
+
+    def poses(self) -> list[tuple[tuple, tuple]]:
+        """Current (position, orientation) of each object (for renderers)."""
+        w = self._world or self.world
+        return [pb.getBasePositionAndOrientation(b, physicsClientId=w.cid) for b in w.bodies]
+
+
+def simulate(scene: Scene, n_frames: int, values: dict[str, float] | None = None,
+             fps: float | None = None) -> Trajectory:
+    return Simulator(scene).run(n_frames, values, fps)
+
+
+def latents_of(values: dict[str, float]) -> dict[str, float]:
+    return {k: v for k, v in values.items() if k in LATENTS}

@@ -1,0 +1,96 @@
+"""Video files: H.264 MP4 writing and frame reading through PyAV (FFmpeg).
+
+OpenCV's bundled FFmpeg writes only mp4v (which rerun rejects) and may not decode
+H.264, so all video I/O goes through PyAV.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import av
+import numpy as np
+
+from .errors import GalileoError
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    width_px: int
+    height_px: int
+    fps: float
+    n_frames: int
+
+
+def write_video(path: str | os.PathLike, frames_rgb: Iterable[np.ndarray], fps: float, crf: int = 18) -> int:
+    """Encode RGB uint8 frames (H, W, 3) as H.264 (yuv420p) MP4, atomically. Returns the frame count."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp.mp4")
+    n = 0
+    try:
+        with av.open(str(tmp), "w") as box:
+            stream = None
+            for frame in frames_rgb:
+                if stream is None:
+                    stream = box.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
+                    stream.height, stream.width = frame.shape[:2]
+                    stream.pix_fmt = "yuv420p"
+                    stream.options = {"crf": str(crf), "preset": "medium", "threads": "1"}
+                for packet in stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")):
+                    box.mux(packet)
+                n += 1
+            if stream is not None:
+                for packet in stream.encode():
+                    box.mux(packet)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return n
+
+
+def _open(path: str | os.PathLike):
+    path = Path(path)
+    if not path.exists():
+        raise GalileoError(f"video not found: {path}")
+    if path.stat().st_size == 0:
+        raise GalileoError(f"video is empty (0 bytes): {path}")
+    try:
+        box = av.open(str(path))
+    except (av.error.FFmpegError, OSError) as e:
+        raise GalileoError(f"cannot read video {path}: {e}") from None
+    if not box.streams.video:
+        box.close()
+        raise GalileoError(f"no video stream in {path}")
+    return box
+
+
+def read_frames(path: str | os.PathLike, fmt: str = "rgb24") -> Iterator[np.ndarray]:
+    """Decoded frames as uint8 arrays (H, W, 3) for rgb24/bgr24, (H, W) for gray."""
+    box = _open(path)
+    try:
+        for frame in box.decode(video=0):
+            yield frame.to_ndarray(format=fmt)
+    except av.error.FFmpegError as e:
+        raise GalileoError(f"video {path} is corrupt: {e}") from None
+    finally:
+        box.close()
+
+
+def read_video(path: str | os.PathLike, fmt: str = "rgb24") -> tuple[np.ndarray, VideoInfo]:
+    """All frames (n, H, W[, 3]) and the stream's properties."""
+    box = _open(path)
+    try:
+        rate = box.streams.video[0].average_rate or box.streams.video[0].guessed_rate
+        fps = float(rate) if rate else 30.0
+    finally:
+        box.close()
+    frames = list(read_frames(path, fmt))
+    if not frames:
+        raise GalileoError(f"video {path} has no decodable frames")
+    arr = np.stack(frames)
+    return arr, VideoInfo(arr.shape[2], arr.shape[1], fps, len(frames))

@@ -1,0 +1,87 @@
+"""The rendered dataset: formats, ground truth that re-simulates exactly, determinism."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from galileo.dataset import plan
+from galileo.materials import MATERIALS, catalogue
+from galileo.physics import Simulator, Trajectory
+from galileo.scene import Scene
+from galileo.video import read_video
+
+
+def test_demo_folder_has_h264_video_scene_and_truth(demo_dir):
+    import av
+
+    with av.open(str(demo_dir / "video.mp4")) as box:
+        stream = box.streams.video[0]
+        assert stream.codec_context.name == "h264"
+        assert float(stream.average_rate) == pytest.approx(30.0)
+    frames, info = read_video(demo_dir / "video.mp4")
+    assert (info.width_px, info.height_px) == (640, 480)
+    scene = Scene.load(demo_dir / "scene.json")
+    truth = json.loads((demo_dir / "truth.json").read_text())
+    assert scene.camera.n_frames == info.n_frames == len(truth["trajectory"]["time_s"])
+    lat = truth["latents"]
+    assert lat["angle_deg"] == 20.0 and lat["target"] == "cardboard"
+    assert {"m1_kg", "k1", "m2_kg", "k2", "shape1", "shape2", "offset_units", "material"} <= set(lat)
+    assert lat["m1_kg"] == scene.ramp_object.mass_kg and lat["k2"] == scene.target.friction
+    # the demo is a collision: the target moves
+    traj = Trajectory.from_json(truth["trajectory"])
+    assert np.ptp(traj.position_m[1, :, 0]) > 0.02
+
+
+def test_truth_trajectory_is_the_scene_simulated(demo_dir):
+    scene = Scene.load(demo_dir / "scene.json")
+    truth = Trajectory.from_json(json.loads((demo_dir / "truth.json").read_text())["trajectory"])
+    again = Simulator(scene).run(scene.camera.n_frames)
+    np.testing.assert_allclose(again.position_m, truth.position_m, atol=1e-9)
+    np.testing.assert_allclose(again.velocity_mps, truth.velocity_mps, atol=1e-9)
+
+
+def test_demo_is_deterministic_for_a_seed(demo_dir, tmp_path):
+    from galileo.dataset import build
+
+    build("demo", tmp_path, seed=0, workers=1, progress=False)
+    for name in ("scene.json", "truth.json"):
+        assert (tmp_path / "demo" / name).read_text() == (demo_dir / name).read_text()
+    a, _ = read_video(tmp_path / "demo" / "video.mp4")
+    b, _ = read_video(demo_dir / "video.mp4")
+    assert np.array_equal(a, b)
+
+
+def test_catalogue_and_presets_follow_the_paper():
+    objs = catalogue(0)
+    assert len(MATERIALS) == 15
+    for m in MATERIALS:
+        mine = [o for o in objs if o.material == m.name]
+        assert 4 <= len(mine) <= 12
+        for o in mine:
+            assert o.shape.problem() is None
+            assert 0.001 < o.mass_kg < 1.0 and m.friction[0] <= o.friction <= m.friction[1]
+            density = o.mass_kg / o.shape.volume_m3
+            assert m.density_kgpm3[0] <= density <= m.density_kgpm3[1]
+    assert len({o.shape.type for o in objs}) == 3
+    full, small = plan("full"), plan("small")
+    assert len(full) == 150 and len(small) == 20
+    for specs in (full, small):
+        by_object = {}
+        for s in specs:
+            by_object.setdefault((s.obj.material, s.obj.index), set()).add(s.angle_deg)
+        assert all(v == {10.0, 20.0} for v in by_object.values())
+    assert {s.target for s in full} == {"cardboard", "foam", "none"}
+    assert plan("small", seed=1) != plan("small", seed=0)
+
+
+@pytest.mark.slow
+def test_small_preset_renders(tmp_path):
+    from galileo.dataset import build
+
+    entries = build("small", tmp_path, seed=0, progress=False)
+    assert len(entries) == 20
+    for e in entries:
+        scene = Scene.load(tmp_path / e["name"] / "scene.json")
+        assert scene.camera.n_frames == e["n_frames"]
+        assert math.isclose(scene.ramp.angle_deg, e["angle_deg"])
