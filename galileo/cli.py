@@ -67,6 +67,21 @@ def cmd_dataset(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_track(args: argparse.Namespace) -> int:
+    from .scene import Scene
+    from .tracking import track
+
+    scene = Scene.load(args.scene)
+    tracks = track(args.video, scene, progress=not args.quiet, debug_video=args.debug_video)
+    tracks.save(args.out)
+    summary = ", ".join(f"{o.name} ({o.role}): {o.shape.type}, seen in {int(o.visible.sum())}/{len(o.visible)} frames"
+                        for o in tracks.objects)
+    print(f"wrote {args.out}: {summary}")
+    if args.debug_video:
+        print(f"wrote {args.debug_video}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="galileo", description="Physical object properties from video: "
                                 "Bullet simulations inside MCMC (Galileo, NIPS 2015).")
@@ -93,6 +108,14 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--workers", type=int, default=None, help="render processes (default: all cores)")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=cmd_dataset)
+
+    t = sub.add_parser("track", help="track the objects of a video: positions and velocities in metres")
+    t.add_argument("video", help="video file (any format FFmpeg reads)")
+    t.add_argument("--scene", required=True, help="scene JSON whose camera describes the video")
+    t.add_argument("--out", required=True, help="tracks JSON to write")
+    t.add_argument("--debug-video", help="also write the video with features, centres and trails drawn (MP4)")
+    t.add_argument("--quiet", action="store_true", help="no progress bar")
+    t.set_defaults(func=cmd_track)
     return p
 
 

@@ -10,7 +10,7 @@ The ramp and the ground have friction 1, so an object's `friction` is exactly it
 Coulomb coefficient against the ramp and the ground. Between two objects the
 coefficient is the product k1 * k2 (and the restitution the product e1 * e2).
 Linear and angular damping are 0 (Bullet's default 0.04 would slow a sliding block by
-about 2% against Newton); sleeping is disabled and a reset drops the previous run's
+about 2% against Newton); rolling friction is 0.0005 (see ROLLING_FRICTION); sleeping is disabled and a reset drops the previous run's
 contacts, so a reused world reproduces a freshly built one bit for bit.
 """
 from __future__ import annotations
@@ -33,6 +33,10 @@ from .scene import LATENTS, Scene, SceneObject
 from .shapes import render_mesh, torus_convex_parts
 
 GROUND_SIZE_M = (8.0, 4.0, 0.1)
+# A cylinder lying along the fall line is neutrally stable across the ramp; Bullet's contact
+# noise makes it roll sideways (~8 mm/s, off the ramp within seconds). A tiny rolling
+# friction stops that and leaves sliding untouched (no rotation, no rolling torque).
+ROLLING_FRICTION = 0.0005
 
 
 @dataclass
@@ -161,7 +165,7 @@ class _World:
             b = pb.createMultiBody(obj.mass_kg, _collision_shape(obj, cid),
                                    _visual_shape(obj, cid) if visual else -1,
                                    basePosition=pos.tolist(), baseOrientation=list(orn), physicsClientId=cid)
-            pb.changeDynamics(b, -1, linearDamping=0.0, angularDamping=0.0, rollingFriction=0.0,
+            pb.changeDynamics(b, -1, linearDamping=0.0, angularDamping=0.0, rollingFriction=ROLLING_FRICTION,
                               spinningFriction=0.0, activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING,
                               physicsClientId=cid)
             self.bodies.append(b)

@@ -24,6 +24,10 @@ from .physics import Simulator, Trajectory, _scratch_dir
 from .scene import Camera, Scene
 
 NEAR_M, FAR_M = 0.05, 20.0
+# TinyRenderer's rasterisation puts a projected point this far (pixels) from where the
+# OpenCV convention (pixel centres at integer coordinates) does; measured on silhouettes
+# (tests/test_render.py) and compensated so renders agree with Camera.project.
+RASTER_OFFSET_PX = (0.0, 1.0)
 
 
 def gl_view_projection(cam: Camera, near: float = NEAR_M, far: float = FAR_M) -> tuple[list[float], list[float]]:
@@ -31,6 +35,7 @@ def gl_view_projection(cam: Camera, near: float = NEAR_M, far: float = FAR_M) ->
     flip = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV camera axes -> OpenGL camera axes
     view = flip @ cam.world_to_camera
     (fx, _, cx), (_, fy, cy), _ = cam.K
+    cx, cy = cx + RASTER_OFFSET_PX[0], cy + RASTER_OFFSET_PX[1]
     w, h = cam.width_px, cam.height_px
     proj = np.array([
         [2 * fx / w, 0, 1 - 2 * cx / w, 0],

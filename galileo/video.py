@@ -70,9 +70,11 @@ def _open(path: str | os.PathLike):
 
 
 def read_frames(path: str | os.PathLike, fmt: str = "rgb24") -> Iterator[np.ndarray]:
-    """Decoded frames as uint8 arrays (H, W, 3) for rgb24/bgr24, (H, W) for gray."""
+    """Decoded frames as uint8 arrays (H, W, 3) for rgb24/bgr24, (H, W) for gray,
+    (H * 3 / 2, W) for yuv420p (the Y plane, then U and V at half resolution)."""
     box = _open(path)
     try:
+        box.streams.video[0].thread_type = "AUTO"
         for frame in box.decode(video=0):
             yield frame.to_ndarray(format=fmt)
     except av.error.FFmpegError as e:
@@ -94,3 +96,40 @@ def read_video(path: str | os.PathLike, fmt: str = "rgb24") -> tuple[np.ndarray,
         raise GalileoError(f"video {path} has no decodable frames")
     arr = np.stack(frames)
     return arr, VideoInfo(arr.shape[2], arr.shape[1], fps, len(frames))
+
+
+def read_video_yuv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, VideoInfo]:
+    """Luma (n, H, W) and chroma (n, H/2, W/2, 2) planes without a colour conversion.
+
+    H.264 stores yuv420p: the luma plane is the grey image trackers want and the chroma
+    planes are already at the half resolution background subtraction runs at.
+    """
+    box = _open(path)
+    try:
+        rate = box.streams.video[0].average_rate or box.streams.video[0].guessed_rate
+        fps = float(rate) if rate else 30.0
+    finally:
+        box.close()
+    ys, uvs = [], []
+    for f in read_frames(path, "yuv420p"):
+        h = f.shape[0] * 2 // 3
+        w = f.shape[1]
+        ys.append(f[:h])
+        u = f[h:h + h // 4].reshape(h // 2, w // 2)
+        v = f[h + h // 4:].reshape(h // 2, w // 2)
+        uvs.append(np.stack([u, v], axis=-1))
+    if not ys:
+        raise GalileoError(f"video {path} has no decodable frames")
+    y = np.stack(ys)
+    if y.shape[1] % 2 or y.shape[2] % 2:
+        raise GalileoError(f"video {path} has odd dimensions {y.shape[2]}x{y.shape[1]}")
+    return y, np.stack(uvs), VideoInfo(y.shape[2], y.shape[1], fps, len(ys))
+
+
+def yuv_to_rgb(y: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """One frame's planes back to RGB (H, W, 3)."""
+    import cv2
+
+    h, w = y.shape
+    i420 = np.concatenate([y.reshape(-1), uv[..., 0].reshape(-1), uv[..., 1].reshape(-1)]).reshape(h * 3 // 2, w)
+    return cv2.cvtColor(i420, cv2.COLOR_YUV2RGB_I420)
