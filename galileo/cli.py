@@ -82,6 +82,70 @@ def cmd_track(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_infer(args: argparse.Namespace) -> int:
+    from .inference import InferenceConfig, infer
+    from .mcmc import Proposal
+    from .scene import Scene
+    from .tracking import Tracks, track
+
+    scene = Scene.load(args.scene)
+    if args.tracks:
+        tracks = Tracks.load(args.tracks)
+    else:
+        tracks = track(args.video, scene, progress=not args.quiet)
+    if args.chains < 1 or args.sweeps < 1:
+        raise GalileoError("--chains and --sweeps must be at least 1")
+    if args.sigma <= 0:
+        raise GalileoError("--sigma must be positive")
+    cfg = InferenceConfig(chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=args.workers,
+                          sigma_mps=args.sigma, speedups=not args.no_speedups,
+                          proposal=Proposal(args.narrow, args.broad, args.broad_every))
+    result = infer(scene, tracks, cfg, progress=not args.quiet)
+    npz = result.save(args.out)
+    m = result.map
+    parts = ", ".join(f"{k} = {v:.3f}" for k, v in m.items())
+    ratio = result.mass_ratio()
+    print(f"MAP: {parts}" + (f", m1/m2 = {ratio:.2f}" if ratio is not None else ""))
+    print(f"wrote {args.out} and {npz} ({result.timing_s['wall']:.1f} s, {result.steps} physics steps)")
+    return 0
+
+
+def cmd_predict(args: argparse.Namespace) -> int:
+    import json
+
+    from .jsonio import write_json
+    from .predict import Prediction
+    from .scene import Scene
+
+    pred = Prediction(args.result)
+    out: dict = {}
+    if args.angle_deg is not None:
+        out["will_it_move"] = pred.will_it_move(args.angle_deg)
+    if args.target or args.scene:
+        out["target"] = pred.target_outcome(Scene.load(args.scene) if args.scene else None)
+    if not out:
+        raise GalileoError("nothing to predict: give --angle-deg and/or --target (or --scene)")
+    text = json.dumps(out, indent=1)
+    if args.out:
+        write_json(args.out, out)
+    print(text)
+    return 0
+
+
+def cmd_experiment(args: argparse.Namespace) -> int:
+    import json
+
+    from .experiments import run_experiments
+    from .inference import InferenceConfig
+
+    cfg = InferenceConfig(chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=args.workers)
+    report = run_experiments(args.dataset, cfg, progress=not args.quiet, out=args.out)
+    summary = dict(report["summary"])
+    summary.pop("k1_errors", None)
+    print(json.dumps(summary, indent=1))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="galileo", description="Physical object properties from video: "
                                 "Bullet simulations inside MCMC (Galileo, NIPS 2015).")
@@ -116,6 +180,41 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--debug-video", help="also write the video with features, centres and trails drawn (MP4)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_track)
+
+    i = sub.add_parser("infer", help="infer masses and frictions from a video (MCMC over Bullet)")
+    i.add_argument("video", help="video file")
+    i.add_argument("--scene", required=True, help="scene JSON whose camera describes the video")
+    i.add_argument("--tracks", help="tracks JSON from `galileo track` (default: track the video first)")
+    i.add_argument("--chains", type=int, default=16)
+    i.add_argument("--sweeps", type=int, default=75)
+    i.add_argument("--seed", type=int, default=0)
+    i.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
+    i.add_argument("--sigma", type=float, default=0.05, help="likelihood SD of a velocity component, m/s")
+    i.add_argument("--narrow", type=float, default=0.05, help="half-width of the usual proposal")
+    i.add_argument("--broad", type=float, default=0.5, help="half-width of the periodic broad proposal")
+    i.add_argument("--broad-every", type=int, default=20, help="every how many sweeps the broad one is used")
+    i.add_argument("--no-speedups", action="store_true", help="plain path: full simulations (for checks)")
+    i.add_argument("--out", required=True, help="result JSON (the sample record goes beside it as .samples.npz)")
+    i.add_argument("--quiet", action="store_true", help="no progress bars")
+    i.set_defaults(func=cmd_infer)
+
+    q = sub.add_parser("predict", help="answer the paper's questions from an inference result")
+    q.add_argument("--result", required=True, help="result JSON from `galileo infer`")
+    q.add_argument("--angle-deg", type=float, help="will the ramp object move on a ramp of this angle?")
+    q.add_argument("--target", action="store_true", help="where does the target end up (the video's scene)?")
+    q.add_argument("--scene", help="where does the target end up in this scene instead?")
+    q.add_argument("--out", help="also write the answers to this JSON file")
+    q.set_defaults(func=cmd_predict)
+
+    e = sub.add_parser("experiment", help="the paper's experiments over a rendered dataset")
+    e.add_argument("dataset", help="folder written by `galileo dataset`")
+    e.add_argument("--chains", type=int, default=16)
+    e.add_argument("--sweeps", type=int, default=75)
+    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--workers", type=int, default=None)
+    e.add_argument("--out", required=True, help="report JSON (rewritten after every video)")
+    e.add_argument("--quiet", action="store_true")
+    e.set_defaults(func=cmd_experiment)
     return p
 
 

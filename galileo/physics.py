@@ -10,13 +10,15 @@ The ramp and the ground have friction 1, so an object's `friction` is exactly it
 Coulomb coefficient against the ramp and the ground. Between two objects the
 coefficient is the product k1 * k2 (and the restitution the product e1 * e2).
 Linear and angular damping are 0 (Bullet's default 0.04 would slow a sliding block by
-about 2% against Newton); rolling friction is 0.0005 (see ROLLING_FRICTION); sleeping is disabled and a reset drops the previous run's
+about 2% against Newton); rolling and spinning friction are 0 but for cylinders (see
+CYLINDER_ROLLING_FRICTION); sleeping is disabled and a reset drops the previous run's
 contacts, so a reused world reproduces a freshly built one bit for bit.
 """
 from __future__ import annotations
 
 import atexit
 import math
+import os
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -33,10 +35,14 @@ from .scene import LATENTS, Scene, SceneObject
 from .shapes import render_mesh, torus_convex_parts
 
 GROUND_SIZE_M = (8.0, 4.0, 0.1)
-# A cylinder lying along the fall line is neutrally stable across the ramp; Bullet's contact
-# noise makes it roll sideways (~8 mm/s, off the ramp within seconds). A tiny rolling
-# friction stops that and leaves sliding untouched (no rotation, no rolling torque).
-ROLLING_FRICTION = 0.0005
+# A round cylinder lying along the fall line is neutrally stable across the ramp; Bullet's
+# contact noise rolls it sideways (0.7 m off a 10 degree ramp in 4 s). A tiny rolling
+# friction on cylinders stops that and leaves sliding untouched (no rolling, no torque).
+# (Other shapes get none: rolling friction doubles the cost of a step.)
+CYLINDER_ROLLING_FRICTION = 0.0005
+# Constraint-solver iterations per step: Bullet's own default (pybullet raises it to 50).
+# The Newton checks hold as tightly with 10 (tests/test_physics.py) at half the cost.
+SOLVER_ITERATIONS = 10
 
 
 @dataclass
@@ -85,10 +91,16 @@ _built: "_World | None" = None
 _mesh_dir: Path | None = None
 
 
+_client_pid: int | None = None
+
+
 def _get_client() -> int:
-    global _client
-    if _client is None or not pb.isConnected(_client):
+    """The process's pybullet client (a forked child connects its own, never its parent's)."""
+    global _client, _client_pid, _built
+    if _client is None or _client_pid != os.getpid() or not pb.isConnected(_client):
         _client = pb.connect(pb.DIRECT)
+        _client_pid = os.getpid()
+        _built = None
     return _client
 
 
@@ -135,7 +147,8 @@ class _World:
         cid = self.cid = _get_client()
         pb.resetSimulation(physicsClientId=cid)
         pb.setPhysicsEngineParameter(fixedTimeStep=1.0 / scene.sim_hz, numSubSteps=0,
-                                     deterministicOverlappingPairs=1, physicsClientId=cid)
+                                     deterministicOverlappingPairs=1, numSolverIterations=SOLVER_ITERATIONS,
+                                     physicsClientId=cid)
         pb.setGravity(0, 0, -scene.gravity_mps2, physicsClientId=cid)
         gx, gy, gz = GROUND_SIZE_M
         ramp = scene.ramp
@@ -165,7 +178,8 @@ class _World:
             b = pb.createMultiBody(obj.mass_kg, _collision_shape(obj, cid),
                                    _visual_shape(obj, cid) if visual else -1,
                                    basePosition=pos.tolist(), baseOrientation=list(orn), physicsClientId=cid)
-            pb.changeDynamics(b, -1, linearDamping=0.0, angularDamping=0.0, rollingFriction=ROLLING_FRICTION,
+            rolling = CYLINDER_ROLLING_FRICTION if obj.shape.type == "cylinder" else 0.0
+            pb.changeDynamics(b, -1, linearDamping=0.0, angularDamping=0.0, rollingFriction=rolling,
                               spinningFriction=0.0, activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING,
                               physicsClientId=cid)
             self.bodies.append(b)
@@ -190,7 +204,7 @@ class Simulator:
     def world(self) -> _World:
         global _built
         key = (self.scene.geometry_key(), self.visual)
-        if _built is None or _built.key != key or not pb.isConnected(_built.cid):
+        if _built is None or _built.key != key or _built.cid != _get_client():
             _built = _World(self.scene, self.visual)
         self._world = _built
         return _built
@@ -198,15 +212,28 @@ class Simulator:
     def reset(self, values: dict[str, float] | None = None) -> _World:
         """Restore the initial state and apply the scene's (or the given) latents."""
         w = self.world
-        cid = w.cid
-        pb.restoreState(w.state, physicsClientId=cid)
+        pb.restoreState(w.state, physicsClientId=w.cid)
         # restoreState leaves the previous run's contact manifolds in place and their cached
         # impulses warm-start the solver, so a reused world would drift (~0.2 mm) from a fresh
         # one. Setting a body's collision filter re-adds it to the broadphase, which drops its
         # manifolds; doing so for every body in creation order keeps the world's object order
         # that of a fresh build. Group 1, mask -1 (all) are Bullet's defaults for dynamic bodies.
+        self.drop_contacts()
+        self.apply_values(values)
+        self.place(values)
+        return w
+
+    def drop_contacts(self) -> None:
+        """Forget all contact manifolds (after restoreState; see `reset`)."""
+        w = self._world or self.world
         for b in w.bodies:
-            pb.setCollisionFilterGroupMask(b, -1, 1, -1, physicsClientId=cid)
+            pb.setCollisionFilterGroupMask(b, -1, 1, -1, physicsClientId=w.cid)
+
+    def apply_values(self, values: dict[str, float] | None = None) -> None:
+        """Set masses (with inertia), frictions, restitutions and the ramp object's start
+        offset from the scene, overridden by `values` (m1_kg, k1, e1, offset_units, ...)."""
+        w = self._world or self.world
+        cid = w.cid
         scene = self.scene
         values = values or {}
         for i, (obj, b) in enumerate(zip(scene.objects, w.bodies)):
@@ -215,16 +242,20 @@ class Simulator:
             pb.changeDynamics(b, -1, mass=mass, localInertiaDiagonal=(mass * w.inertia_per_kg[i]).tolist(),
                               lateralFriction=values.get("k" + n, obj.friction),
                               restitution=values.get("e" + n, obj.restitution), physicsClientId=cid)
-            if i == 0:
-                # The saved state holds the ramp object at the offset the world was built with
-                # (the offset is not part of the geometry key), so always place it; placing it
-                # even when the offset matches keeps the pose bit-identical to a moved one
-                # (createMultiBody stores a quaternion that differs in the last bit).
-                offset = int(round(values.get("offset_units", obj.offset_units)))
-                placed = scene if offset == obj.offset_units else scene.with_values({"offset_units": offset})
-                pos, orn = placed.initial_pose(0)
-                pb.resetBasePositionAndOrientation(b, pos.tolist(), orn, physicsClientId=cid)
-        return w
+
+    def place(self, values: dict[str, float] | None = None) -> None:
+        """Put the ramp object at its start (the scene's offset or values["offset_units"])."""
+        w = self._world or self.world
+        obj = self.scene.ramp_object
+        values = values or {}
+        # The saved state holds the ramp object at the offset the world was built with
+        # (the offset is not part of the geometry key), so always place it; placing it
+        # even when the offset matches keeps the pose bit-identical to a moved one
+        # (createMultiBody stores a quaternion that differs in the last bit).
+        offset = int(round(values.get("offset_units", obj.offset_units)))
+        placed = self.scene if offset == obj.offset_units else self.scene.with_values({"offset_units": offset})
+        pos, orn = placed.initial_pose(0)
+        pb.resetBasePositionAndOrientation(w.bodies[0], pos.tolist(), orn, physicsClientId=w.cid)
 
     def run(self, n_frames: int, values: dict[str, float] | None = None, fps: float | None = None,
             on_frame: Callable[[int, np.ndarray, np.ndarray], bool] | None = None) -> Trajectory:

@@ -103,7 +103,8 @@ class Look:
 class Renderer:
     """Renders frames of a scene's simulation through its camera."""
 
-    def __init__(self, scene: Scene, look: Look | None = None, texture_seed: int = 0):
+    def __init__(self, scene: Scene, look: Look | None = None, texture_seed: int = 0,
+                 colors: dict[int, tuple[int, int, int]] | None = None):
         if scene.camera is None:
             raise ValueError("rendering needs a scene with a camera")
         self.scene = scene
@@ -122,7 +123,7 @@ class Renderer:
             pb.changeVisualShape(w.backdrop, -1, rgbaColor=[1, 1, 1, 1], physicsClientId=cid,
                                  textureUniqueId=_load_texture(grain_texture((225, 228, 232), rng, strength=5), "wall", cid))
         for i, b in enumerate(w.bodies):
-            tex = block_texture(object_color(scene, i), rng)
+            tex = block_texture((colors or {}).get(i) or object_color(scene, i), rng)
             pb.changeVisualShape(b, -1, rgbaColor=[1, 1, 1, 1], physicsClientId=cid,
                                  textureUniqueId=_load_texture(tex, f"object{i}_{texture_seed}", cid))
         self._noise_rng = np.random.default_rng(self.look.seed)

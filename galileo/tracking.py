@@ -241,9 +241,17 @@ def shape_crop(rgb: np.ndarray, mask: np.ndarray, scene: Scene, role: str) -> np
     return np.stack([(g - mu) / sd, m]).astype(np.float32)
 
 
-def _classify(mask: np.ndarray, gray: np.ndarray, fits: dict) -> str:
-    """box / cylinder / torus: the shape whose projected silhouette fits best."""
-    return min(fits, key=lambda k: fits[k][2])
+def classify_shape(scene: Scene, role: str, mask: np.ndarray, rgb: np.ndarray, length_m: float,
+                   height_m: float) -> tuple[str, dict[str, float] | None]:
+    """box / cylinder / torus from the object's appearance (`galileo.shapenet`); without
+    its weights, the shape whose projected silhouette fits best (a weak cue: side views
+    of boxes and cylinders coincide)."""
+    from . import shapenet
+
+    if shapenet.available():
+        crop = shape_crop(rgb, mask, scene, role)
+        return shapenet.predict(crop, shapenet.scalars_of(max(length_m, 1e-3), max(height_m, 1e-3)))
+    return "", None
 
 
 def _outline_points(shape: Shape) -> np.ndarray:
@@ -320,7 +328,7 @@ def _fit_silhouette(scene: Scene, role: str, mask: np.ndarray, kind: str, init: 
     return float(res.x[0]), shape_of(res.x), float(res.fun)
 
 
-def _measure(scene: Scene, role: str, mask: np.ndarray, gray: np.ndarray) -> _Frame0:
+def _measure(scene: Scene, role: str, mask: np.ndarray, rgb: np.ndarray) -> _Frame0:
     cam = scene.camera
     along, normal, phi0 = _support_frame(scene, role)
     ys, xs = np.nonzero(mask)
@@ -330,9 +338,12 @@ def _measure(scene: Scene, role: str, mask: np.ndarray, gray: np.ndarray) -> _Fr
     mid = float((a.max() + a.min()) / 2)
     along0 = -mid if role == "ramp" else mid
     init = (along0, max(length, 0.005), max(math.sqrt(length * height), 0.005), max(height, 0.005))
-    fits = {kind: _fit_silhouette(scene, role, mask, kind, init) for kind in ("box", "cylinder", "torus")}
-    kind = _classify(mask, gray, fits)
-    along_m, shape, _ = fits[kind]
+    kind, _ = classify_shape(scene, role, mask, rgb, length, height)
+    if kind:
+        along_m, shape, _ = _fit_silhouette(scene, role, mask, kind, init)
+    else:
+        fits = {k: _fit_silhouette(scene, role, mask, k, init) for k in ("box", "cylinder", "torus")}
+        along_m, shape, _ = min(fits.values(), key=lambda f: f[2])
     centre, _ = _pose_on_support(scene, role, along_m, shape.height_m)
     return _Frame0(mask, shape, centre[[0, 2]], phi0, along_m if role == "ramp" else None)
 
@@ -780,7 +791,7 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
             phi0 = _support_frame(scene, obj.role)[2]
             f0 = _Frame0(mask, obj.shape, pos[[0, 2]], phi0, scene.start_distance_m(obj) if obj.role == "ramp" else None)
         else:
-            f0 = _measure(scene, obj.role, mask, gray[0])
+            f0 = _measure(scene, obj.role, mask, first_rgb)
         tr = _ObjectTracker(obj.name, obj.role, f0, cam, n, how)
         tr.add_features(gray[0], mask)
         tr.fit(0)

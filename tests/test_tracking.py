@@ -71,6 +71,7 @@ def test_demo_tracks_match_ground_truth(demo_dir, demo_tracks):
     assert summary["velocity_rmse_mps"] < 0.08
     assert s.offset_found == s.offset_true
     assert tracks.objects[0].visible.mean() > 0.9
+    assert tracks.objects[0].shape.type == truth["latents"]["shape1"]["type"]
     # bottom-up size of the ramp object within 20% per axis seen from the side (x, z)
     true_size = np.array(truth["latents"]["shape1"]["size_m"])
     found = np.array(tracks.objects[0].shape.size_m)
@@ -178,7 +179,8 @@ def test_scene_without_camera(demo_dir, tmp_path, capsys):
 def test_small_preset_accuracy(tmp_path):
     """Issue targets on the rendered small preset: median position error <= 5 mm and velocity
     RMSE <= 0.05 m/s over frames in which objects move, identities kept through every
-    collision. Videos in which nothing moves must be refused with a clear error."""
+    collision, shape type right for >= 80% of ramp objects. Videos in which nothing moves
+    must be refused with a clear error."""
     from galileo.dataset import build
     from galileo.track_eval import aggregate, evaluate_folder
 
@@ -199,3 +201,4 @@ def test_small_preset_accuracy(tmp_path):
     assert agg["velocity_rmse_mps"] <= 0.05
     assert agg["identity_preserved"] == len(scores)
     assert agg["offset_right"] >= 0.8
+    assert agg["shape_type_right_ramp_objects"] >= 0.8

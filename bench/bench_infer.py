@@ -1,0 +1,130 @@
+"""Inference speed: the paper's protocol (16 chains x 75 sweeps) on one video, naive against default.
+
+Usage (from the repository root):
+    python bench/bench_infer.py [--video V --scene S [--tracks T]] [--chains 16] [--sweeps 75]
+                                [--seed 0] [--workers N] [--json]
+
+Without --video it renders the demo preset into a temporary folder first; without --tracks
+it tracks the video (tracking time is reported but not part of the inference times).
+Both runs use the same scene, tracks, seed and chains, in this process:
+
+* naive:   speedups=False, workers=1 - every proposal simulates every frame, one process;
+* default: speedups=True (early rejection, at-rest cut-off, prefix reuse), all cores
+           (or --workers).
+
+Wall times are of `galileo.inference.infer` (process start-up of the workers included).
+Physics steps are the stepSimulation calls of all chains. Also reported: whether the two
+runs made the same decisions (they should: the speed-ups are exact up to rounding).
+Targets: default <= 2 s per video, and >= 10x faster than naive.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from galileo.inference import InferenceConfig, infer  # noqa: E402
+from galileo.scene import Scene  # noqa: E402
+from galileo.tracking import Tracks, track  # noqa: E402
+
+TARGET_DEFAULT_S = 2.0
+TARGET_SPEEDUP = 10.0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--video", help="video file (default: render the demo preset into a temp dir)")
+    ap.add_argument("--scene", help="scene JSON of the video (required with --video)")
+    ap.add_argument("--tracks", help="tracks JSON of the video (default: track it)")
+    ap.add_argument("--chains", type=int, default=16, help="chains (default 16, the paper's)")
+    ap.add_argument("--sweeps", type=int, default=75, help="sweeps per chain (default 75, the paper's)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=None, help="workers of the default run (default: all cores)")
+    ap.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    args = ap.parse_args(argv)
+    if args.chains < 1 or args.sweeps < 1:
+        ap.error("--chains and --sweeps must be >= 1")
+    if bool(args.video) != bool(args.scene):
+        ap.error("--video and --scene go together")
+    if args.tracks and not args.video:
+        ap.error("--tracks needs --video and --scene")
+
+    tmp = None
+    t0 = time.perf_counter()
+    if args.video:
+        video, scene_path, source = Path(args.video), Path(args.scene), args.video
+    else:
+        from galileo.dataset import build
+
+        tmp = tempfile.TemporaryDirectory(prefix="bench-infer-")
+        build("demo", tmp.name, workers=1, progress=False)
+        video, scene_path, source = Path(tmp.name) / "demo" / "video.mp4", Path(tmp.name) / "demo" / "scene.json", "demo preset"
+    render_s = time.perf_counter() - t0
+    scene = Scene.load(scene_path)
+    t0 = time.perf_counter()
+    tracks = Tracks.load(args.tracks) if args.tracks else track(video, scene, progress=False)
+    track_s = time.perf_counter() - t0
+
+    base = dict(chains=args.chains, sweeps=args.sweeps, seed=args.seed)
+    naive = infer(scene, tracks, InferenceConfig(speedups=False, workers=1, **base), progress=False)
+    default = infer(scene, tracks, InferenceConfig(speedups=True, workers=args.workers, **base), progress=False)
+
+    t_naive, t_default = naive.timing_s["wall"], default.timing_s["wall"]
+    speedup = t_naive / t_default
+    same = bool(np.array_equal(naive.samples, default.samples)
+                and np.array_equal(naive.proposals["accepted"], default.proposals["accepted"]))
+    result = {
+        "video": str(source), "n_frames": tracks.n_frames, "latents": list(default.names),
+        "chains": args.chains, "sweeps": args.sweeps, "seed": args.seed,
+        "proposals": int(default.proposals["accepted"].size),
+        "naive": {"wall_s": t_naive, "physics_steps": naive.steps, "workers": naive.timing_s["workers"],
+                  "chains_cpu_s": naive.timing_s["chains_cpu"], "map": naive.map, "map_loglik": naive.map_loglik},
+        "default": {"wall_s": t_default, "physics_steps": default.steps, "workers": default.timing_s["workers"],
+                    "chains_cpu_s": default.timing_s["chains_cpu"], "map": default.map,
+                    "map_loglik": default.map_loglik,
+                    "early_stopped": float(default.proposals["early_stop"].mean())},
+        "speedup_wall": speedup, "steps_ratio": naive.steps / max(default.steps, 1),
+        "cpu_ratio": naive.timing_s["chains_cpu"] / default.timing_s["chains_cpu"],
+        "same_decisions": same,
+        "max_abs_loglik_diff": float(np.abs(naive.logliks - default.logliks).max()),
+        "target_default_s": TARGET_DEFAULT_S, "target_speedup": TARGET_SPEEDUP,
+        "ok_default_s": t_default <= TARGET_DEFAULT_S, "ok_speedup": speedup >= TARGET_SPEEDUP,
+        "render_s": render_s if tmp else None, "track_s": track_s,
+        "cpu_count": os.cpu_count(), "python": platform.python_version(), "machine": platform.machine(),
+    }
+    if tmp is not None:
+        tmp.cleanup()
+    if args.json:
+        print(json.dumps(result))
+        return 0
+
+    def ok(flag):
+        return "ok" if flag else "MISSED"
+
+    print(f"video: {source}, {tracks.n_frames} frames; {args.chains} chains x {args.sweeps} sweeps x "
+          f"{len(default.names)} latents = {result['proposals']} proposals, seed {args.seed}; "
+          f"{os.cpu_count()} cores" + (f"; tracking {track_s:.2f} s (not counted)" if not args.tracks else ""))
+    print(f"naive   (no speed-ups, 1 worker)    : {t_naive:7.2f} s  {naive.steps:>10,d} physics steps  "
+          f"(chain CPU {naive.timing_s['chains_cpu']:.2f} s)")
+    print(f"default (speed-ups, {default.timing_s['workers']:>2d} worker(s))   : {t_default:7.2f} s  "
+          f"{default.steps:>10,d} physics steps  (chain CPU {default.timing_s['chains_cpu']:.2f} s; "
+          f"{100 * result['default']['early_stopped']:.0f}% of proposals stopped early)")
+    print(f"speed-up: {speedup:.1f}x wall (target >= {TARGET_SPEEDUP:g}x: {ok(result['ok_speedup'])}), "
+          f"{result['steps_ratio']:.1f}x fewer steps, {result['cpu_ratio']:.1f}x less chain CPU")
+    print(f"default per video: {t_default:.2f} s (target <= {TARGET_DEFAULT_S:g} s: {ok(result['ok_default_s'])})")
+    print(f"same decisions as naive: {'yes' if same else 'NO'} (max |log-lik difference| "
+          f"{result['max_abs_loglik_diff']:.2g}); MAP {', '.join(f'{k} = {v:.3f}' for k, v in default.map.items())}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

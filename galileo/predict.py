@@ -1,0 +1,83 @@
+"""Predictions from an inference result (Galileo section 6): will the ramp object move on a
+ramp of another angle; where does the target end up.
+
+Each answer comes from simulating the MAP estimate, with the share of posterior samples
+(second half of every chain) that agree, so the user sees how sure the model is.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from .errors import GalileoError
+from .inference import BURN_IN_FRACTION, load_samples
+from .jsonio import read_json
+from .physics import Simulator
+from .scene import Scene, scene_from_json
+
+MOVE_THRESHOLD_M = 0.01   # "it moves": its centre travels more than this in MOVE_WINDOW_S
+MOVE_WINDOW_S = 2.0
+SETTLE_S = 4.0            # time allowed for the target to come to rest
+
+
+class Prediction:
+    """A loaded result: its scene, MAP and posterior samples."""
+
+    def __init__(self, result_path: str | Path, max_samples: int = 64):
+        result_path = Path(result_path)
+        d = read_json(result_path, "result file")
+        try:
+            self.scene: Scene = scene_from_json(d["scene"])
+            self.map: dict[str, float] = {k: float(v) for k, v in d["map"].items()}
+            samples_file = result_path.with_name(d["samples_file"]) if d.get("samples_file") else None
+        except (KeyError, TypeError) as e:
+            raise GalileoError(f"{result_path} is not a galileo result file: missing {e}") from None
+        self.names = tuple(d.get("latents", list(self.map)))
+        self.samples = np.zeros((0, len(self.names)))
+        if samples_file is not None and samples_file.exists():
+            rec = load_samples(samples_file)
+            s = rec["samples"]
+            kept = s[:, int(s.shape[1] * BURN_IN_FRACTION):].reshape(-1, s.shape[2])
+            idx = np.linspace(0, len(kept) - 1, min(max_samples, len(kept))).astype(int)
+            self.samples = kept[idx]
+
+    def _values(self, row) -> dict[str, float]:
+        return {n: float(v) for n, v in zip(self.names, row)}
+
+    def will_it_move(self, angle_deg: float) -> dict:
+        """Does the ramp object slide on a ramp of `angle_deg` (target removed)?"""
+        scene = dataclasses.replace(self.scene.with_values({"angle_deg": angle_deg}), objects=self.scene.objects[:1])
+        fps = 30.0
+        n = int(MOVE_WINDOW_S * fps) + 1
+        sim = Simulator(scene)
+
+        def moves(values) -> bool:
+            t = sim.run(n, {k: v for k, v in values.items() if k in ("m1_kg", "k1")}, fps=fps)
+            return bool(np.linalg.norm(t.position_m[0, -1] - t.position_m[0, 0]) > MOVE_THRESHOLD_M)
+
+        answer = moves(self.map)
+        share = float(np.mean([moves(self._values(r)) for r in self.samples])) if len(self.samples) else None
+        return {"angle_deg": angle_deg, "moves": answer, "posterior_share_moving": share,
+                "k1_map": self.map["k1"], "tan_angle": float(np.tan(np.radians(angle_deg)))}
+
+    def target_outcome(self, scene: Scene | None = None) -> dict:
+        """Where the target comes to rest (x of its centre, m), for the inferred scene or `scene`."""
+        scene = scene or self.scene
+        if scene.target is None:
+            raise GalileoError("this scene has no target")
+        fps = 30.0
+        n = int(SETTLE_S * fps) + 1
+        sim = Simulator(scene)
+
+        def final_x(values) -> float:
+            return float(sim.run(n, values, fps=fps).position_m[1, -1, 0])
+
+        x = final_x(self.map)
+        xs = np.array([final_x(self._values(r)) for r in self.samples]) if len(self.samples) else np.zeros(0)
+        out = {"target_final_x_m": x, "target_moved_m": x - float(scene.initial_pose(1)[0][0])}
+        if len(xs):
+            out.update({"posterior_q05_x_m": float(np.quantile(xs, 0.05)),
+                        "posterior_q95_x_m": float(np.quantile(xs, 0.95))})
+        return out
