@@ -1,21 +1,29 @@
-"""Galileo app entry point: `python app.py` runs the built-in demo.
+"""Galileo app: watch and steer physical inference from video in the browser.
 
-The browser viewer (viser), live priors/steering, rerun streams and recorded sessions
-arrive with the app issue; until then this renders (and caches) the demo video and
-says what the app will do with it.
+    python app.py                                  # the built-in demo (rendered and cached on first run)
+    python app.py --video V.mp4 --scene S.json     # your own video and its scene/camera file
+    python app.py --session sessions/<name>        # reopen a recorded session (scrub it; resume its chains)
+
+Tracks the video, starts the MCMC chains in background worker processes, serves the viewer
+(viser) on http://127.0.0.1:8080 and records the session under sessions/<timestamp>-<name>/.
+Log-likelihood traces, posteriors, the video with its tracks and the selected simulation
+stream to rerun (`--rerun save`, the default, writes session.rrd in the session folder).
 """
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
 DEMO_DIR = ROOT / ".cache" / "demo"
+SESSIONS = ROOT / "sessions"
 
 
 def ensure_demo(progress: bool = True) -> Path:
-    """Render the demo video on first run and cache it under .cache/demo/."""
+    """Render the demo video on first run and cache it (with its tracks) under .cache/demo/."""
     from galileo.dataset import build
 
     folder = DEMO_DIR / "demo"
@@ -24,24 +32,139 @@ def ensure_demo(progress: bool = True) -> Path:
     return folder
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Galileo: watch and steer physical inference from video")
-    parser.add_argument("--host", default="127.0.0.1")
-    parser.add_argument("--port", type=int, default=8080)
-    args = parser.parse_args(argv)
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description="Galileo: watch and steer physical inference from video")
+    p.add_argument("--video", help="video file (with --scene); default: the built-in demo")
+    p.add_argument("--scene", help="scene JSON whose camera describes the video")
+    p.add_argument("--session", help="reopen a recorded session folder")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8080)
+    p.add_argument("--rerun", nargs="+", default=["save"], metavar="MODE",
+                   help="off | save (session.rrd in the session folder) | web (also serve rerun's web viewer) "
+                        "| connect URL")
+    p.add_argument("--chains", type=int, default=16)
+    p.add_argument("--sweeps", type=int, default=75, help="sweeps per chain before it pauses (resume to go on)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
+    p.add_argument("--name", help="session name (default: the video's name)")
+    return p.parse_args(argv)
+
+
+def _rerun_mode(args) -> tuple[str, str | None]:
+    mode = args.rerun[0]
+    if mode not in ("off", "save", "web", "connect"):
+        raise SystemExit(f"app: error: --rerun must be off, save, web or connect URL, not {mode!r}")
+    url = args.rerun[1] if len(args.rerun) > 1 else None
+    if mode == "connect" and not url:
+        raise SystemExit("app: error: --rerun connect needs a URL, e.g. rerun+http://127.0.0.1:9876/proxy")
+    return mode, url
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
     from galileo.errors import GalileoError
-    from galileo.scene import Scene
 
     try:
-        folder = ensure_demo()
-        scene = Scene.load(folder / "scene.json")
+        return run(args)
     except GalileoError as e:
-        print(f"app: error: {e}", file=sys.stderr)
+        print(f"app: error: {' '.join(str(e).split())}", file=sys.stderr)
         return 2
-    print(f"demo video: {folder / 'video.mp4'} ({scene.camera.n_frames} frames at {scene.camera.fps:g} fps, "
-          f"ramp {scene.ramp.angle_deg:g} deg, target {scene.target.kind if scene.target else 'none'})")
-    print("The app will: track the video, run 16 MCMC chains over m1, k1, m2, k2 in background workers, "
-          f"and serve the viewer on http://{args.host}:{args.port} (not built yet: see the open app issue).")
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from galileo.errors import GalileoError
+    from galileo.jsonio import write_json
+    from galileo.scene import Scene
+    from galileo.tracking import Tracks, track
+    from galileo.video import read_video
+    from ui.controller import Controller, Settings
+    from ui.rerun_log import RerunLogger
+    from ui.session import new_session_dir
+    from ui.viewer import Viewer
+
+    mode, url = _rerun_mode(args)
+    if args.session:
+        session = Path(args.session)
+        ctrl = Controller.load(session, workers=args.workers)
+        scene, tracks = ctrl.scene, ctrl.tracks
+        video_path = session / "video.mp4"
+        if not video_path.exists():
+            raise GalileoError(f"session {session} has no video.mp4")
+    else:
+        if bool(args.video) != bool(args.scene):
+            raise GalileoError("give both --video and --scene (or neither, for the demo)")
+        if args.video:
+            video_path, scene_path = Path(args.video), Path(args.scene)
+            name = args.name or video_path.stem
+        else:
+            folder = ensure_demo()
+            video_path, scene_path = folder / "video.mp4", folder / "scene.json"
+            name = args.name or "demo"
+        scene = Scene.load(scene_path)
+        print(f"tracking {video_path} ...")
+        tracks = track(video_path, scene)
+        session = new_session_dir(SESSIONS, name)
+        import shutil
+
+        shutil.copyfile(video_path, session / "video.mp4")
+        write_json(session / "scene.json", scene.to_json())
+        bounds = {n: tuple(scene.priors.bounds[n]) for n in scene.latent_names}
+        ctrl = Controller(scene, tracks, chains=args.chains, seed=args.seed, workers=args.workers,
+                          settings=Settings(bounds=bounds), session_dir=session)
+    video, _ = read_video(video_path)
+    old_rrd = session / "session.rrd"
+    if mode != "off" and old_rrd.exists():  # keep the earlier run's recording
+        import time as _time
+
+        old_rrd.rename(session / f"session.{_time.strftime('%Y%m%d-%H%M%S', _time.localtime(old_rrd.stat().st_mtime))}.rrd")
+
+    try:
+        logger = RerunLogger(mode, session_dir=session, connect_url=url, host=args.host,
+                             latents=list(ctrl.names), n_chains=len(ctrl.all_chain_ids()))
+    except RuntimeError as e:
+        raise GalileoError(f"rerun: {e}") from None
+    logger.log_video(video_path, tracks, tracks.fps)
+    names = ctrl.names
+    posterior_every = max(1, len(ctrl.chain_ids()))
+
+    def on_controller(kind, payload):
+        if kind == "sweeps":
+            active = set(ctrl.chain_ids())
+            for chain, sweep, loglik, values in payload["results"]:
+                logger.log_sweep(chain, sweep, loglik, values)
+                if sweep == args.sweeps and chain in active:
+                    ctrl.pause(chain)  # the paper's protocol: 75 sweeps a chain; resume to go on
+            on_controller.rounds += 1
+            if on_controller.rounds % posterior_every == 0:
+                samples = [ctrl.samples(c) for c in ctrl.chain_ids()]
+                kept = [s[len(s) // 2:] for s in samples if len(s)]
+                if kept:
+                    logger.log_posterior(names, np.concatenate(kept), ctrl.settings.bounds)
+        elif kind == "event":
+            logger.log_event(payload["sweep"], f"{payload['kind']}: {payload['detail']}")
+    on_controller.rounds = 0
+    ctrl.add_listener(on_controller)
+
+    viewer = Viewer(ctrl, ctrl.likelihood_scene, tracks, video, host=args.host, port=args.port,
+                    target_sweeps=args.sweeps)
+    if viewer.traj is not None:
+        logger.log_simulation(viewer.traj)
+    print(f"viewer: {viewer.url}")
+    if getattr(logger, "web_url", None):
+        print(f"rerun web viewer: {logger.web_url}")
+    print(f"session: {session}  (Ctrl-C to stop; the session is saved as it goes)")
+    ctrl.start()
+    done = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: done.set())
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    done.wait()
+    print("stopping ...")
+    ctrl.stop()
+    viewer.close()
+    logger.close()
+    print(f"saved {session}")
     return 0
 
 

@@ -56,6 +56,10 @@ _worker_likelihood: VelocityLikelihood | None = None
 def _worker_init(scene_json: dict, tracks_json: dict, sigma: float, speedups: bool) -> None:
     """Runs in each worker: the likelihood, built once (with the worker's own pybullet client)."""
     global _worker_likelihood
+    import signal
+
+    if mp.parent_process() is not None:  # in a worker: Ctrl-C is the parent's to handle
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     from .scene import scene_from_json
 
     _worker_likelihood = VelocityLikelihood(scene_from_json(scene_json), Tracks.from_json(tracks_json),

@@ -52,6 +52,7 @@ class Trajectory:
     names: list[str]
     position_m: np.ndarray    # (n_objects, n_frames, 3)
     velocity_mps: np.ndarray  # (n_objects, n_frames, 3)
+    orientation_xyzw: np.ndarray | None = None  # (n_objects, n_frames, 4), when asked for (not saved)
 
     @property
     def n_frames(self) -> int:
@@ -258,7 +259,8 @@ class Simulator:
         pb.resetBasePositionAndOrientation(w.bodies[0], pos.tolist(), orn, physicsClientId=w.cid)
 
     def run(self, n_frames: int, values: dict[str, float] | None = None, fps: float | None = None,
-            on_frame: Callable[[int, np.ndarray, np.ndarray], bool] | None = None) -> Trajectory:
+            on_frame: Callable[[int, np.ndarray, np.ndarray], bool] | None = None,
+            with_orientation: bool = False) -> Trajectory:
         """Simulate `n_frames` frames (frame 0 is t = 0) at `fps` (default: the camera's, else 30).
 
         `on_frame(frame, position_m, velocity_mps)` may return True to stop early; the
@@ -275,6 +277,7 @@ class Simulator:
         n_obj = len(bodies)
         pos = np.empty((n_obj, n_frames, 3))
         vel = np.empty((n_obj, n_frames, 3))
+        orn = np.empty((n_obj, n_frames, 4)) if with_orientation else None
         get_pose, get_vel, step = pb.getBasePositionAndOrientation, pb.getBaseVelocity, pb.stepSimulation
         done = n_frames
         for f in range(n_frames):
@@ -282,12 +285,16 @@ class Simulator:
                 for _ in range(spf):
                     step(physicsClientId=cid)
             for i, b in enumerate(bodies):
-                pos[i, f] = get_pose(b, physicsClientId=cid)[0]
+                p, q = get_pose(b, physicsClientId=cid)
+                pos[i, f] = p
                 vel[i, f] = get_vel(b, physicsClientId=cid)[0]
+                if orn is not None:
+                    orn[i, f] = q
             if on_frame is not None and on_frame(f, pos[:, f], vel[:, f]):
                 done = f + 1
                 break
-        return Trajectory(fps, [o.name for o in scene.objects], pos[:, :done], vel[:, :done])
+        return Trajectory(fps, [o.name for o in scene.objects], pos[:, :done], vel[:, :done],
+                          None if orn is None else orn[:, :done])
 
     def poses(self) -> list[tuple[tuple, tuple]]:
         """Current (position, orientation) of each object (for renderers)."""

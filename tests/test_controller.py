@@ -1,0 +1,444 @@
+"""The live inference controller (ui/controller.py) and its sessions (ui/session.py), on the
+demo video: the batch runner's chains, steering applied from the next sweep, saved sessions
+that resume bit for bit, and the background thread."""
+import json
+import re
+import shutil
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from galileo.errors import GalileoError
+from galileo.inference import InferenceConfig, infer
+from galileo.likelihood import VelocityLikelihood
+from galileo.scene import Scene
+from galileo.tracking import track
+from ui import session as sess
+from ui.controller import Controller, Settings
+
+NAMES = ("m1_kg", "k1", "m2_kg", "k2")
+
+
+@pytest.fixture(scope="module")
+def demo(demo_dir):
+    """(scene, tracks) of the demo video, tracked once for the module."""
+    scene = Scene.load(demo_dir / "scene.json")
+    return scene, track(demo_dir / "video.mp4", scene, progress=False)
+
+
+@pytest.fixture
+def make(demo):
+    """Controllers on the demo, closed after the test."""
+    made = []
+
+    def _make(**kw):
+        kw.setdefault("chains", 2)
+        kw.setdefault("workers", 1)
+        c = Controller(*demo, **kw)
+        made.append(c)
+        return c
+    yield _make
+    for c in made:
+        c.close()
+
+
+def lik_at(demo, sigma, x):
+    return VelocityLikelihood(*demo, sigma_mps=sigma)(np.asarray(x, float))[0]
+
+
+def same_chains(a: Controller, b: Controller, ids=None):
+    for c in ids if ids is not None else a.all_chain_ids():
+        assert np.array_equal(a.samples(c), b.samples(c)), c
+        assert np.array_equal(a.logliks(c), b.logliks(c)), c
+        pa, pb = a.proposals(c), b.proposals(c)
+        for k in ("site", "proposal", "accepted", "early_stop", "width"):
+            assert np.array_equal(pa[k], pb[k]), (c, k)
+
+
+# -- running ---------------------------------------------------------------------------------------------
+
+def test_run_sweeps_grows_samples_and_map_is_the_best_sample(make):
+    ctl = make(chains=2, seed=0)
+    assert ctl.names == NAMES and ctl.chain_ids() == [0, 1] and ctl.map() is None
+    assert ctl.samples(0).shape == (0, 4) and ctl.logliks(0).shape == (0,)
+    ctl.run_sweeps(3)
+    assert ctl.samples(0).shape == (3, 4) and ctl.logliks(1).shape == (3,)
+    ctl.run_sweeps(2)
+    for c in (0, 1):
+        s, ll = ctl.samples(c), ctl.logliks(c)
+        assert s.shape == (5, 4) and ll.shape == (5,) and np.all(np.isfinite(ll))
+        assert ctl.sample(c, 4) == dict(zip(NAMES, s[4].tolist()))
+        assert len(ctl.proposals(c)["site"]) == 5 * 4
+    all_ll = np.stack([ctl.logliks(c) for c in (0, 1)])
+    c, i, values, ll = ctl.map()
+    assert ll == all_ll.max() and (c, i) == np.unravel_index(np.argmax(all_ll), all_ll.shape)
+    assert values == ctl.sample(c, i)
+    st = ctl.status()
+    assert st["rounds"] == 5 and st["sweeps"] == 10 and st["proposals"] == 40
+    assert set(st["chains"]) == {0, 1} and st["chains"][0]["sweeps"] == 5
+    assert st["chains"][1]["loglik"] == ctl.logliks(1)[-1] and st["chains"][0]["state"] == "running"
+    assert st["chains"][0]["running"] and not st["chains"][0]["paused"]
+    assert ctl.likelihood_scene.objects[0].shape == ctl.tracks.by_role("ramp").shape
+    assert set(st["acceptance"]) == set(NAMES) and 0 < st["accepted"] < st["proposals"]
+    assert st["map"]["loglik"] == ll
+    assert all(v is None or np.isfinite(v) for v in st["r_hat"].values())
+
+
+def test_same_seed_same_chains_for_one_and_two_workers(make):
+    one, two = make(chains=3, seed=4, workers=1), make(chains=3, seed=4, workers=2)
+    one.run_sweeps(3)
+    two.run_sweeps(3)
+    same_chains(one, two)
+    assert one.map() == two.map()
+
+
+def test_chains_equal_the_batch_runner(demo, make):
+    """Same kernel, same streams, same starts: the batch runner's chains bit for bit."""
+    res = infer(*demo, InferenceConfig(chains=2, sweeps=4, seed=3, workers=1), progress=False)
+    ctl = make(chains=2, seed=3, workers=2)
+    ctl.run_sweeps(4)
+    for c in range(2):
+        assert np.array_equal(ctl.samples(c), res.samples[c])
+        assert np.array_equal(ctl.logliks(c), res.logliks[c])
+        p = ctl.proposals(c)
+        for k in ("site", "proposal", "accepted", "early_stop", "proposal_loglik"):
+            assert np.array_equal(p[k], res.proposals[k][c]), k
+    c, i, values, ll = ctl.map()
+    assert (c, i) == res.map_index and values == res.map and ll == res.map_loglik
+
+
+# -- steering -----------------------------------------------------------------------------------------------
+
+def test_pause_resume_add_and_remove_chains(demo, make):
+    ctl = make(chains=2, seed=1, workers=2)
+    ctl.run_sweeps(2)
+    ctl.pause(0)
+    ctl.run_sweeps(2)
+    assert len(ctl.samples(0)) == 2 and len(ctl.samples(1)) == 4
+    assert ctl.status()["chains"][0]["state"] == "paused"
+    ev = ctl.events[-1]
+    assert ev["kind"] == "pause" and ev["sweep"] == 2 and ev["detail"]["chains"] == [0]
+    ctl.resume(0)
+    ctl.run_sweeps(1)
+    assert len(ctl.samples(0)) == 3 and len(ctl.samples(1)) == 5
+    assert ctl.events[-1]["kind"] == "resume" and ctl.events[-1]["sweep"] == 4
+
+    # a new chain is the batch runner's chain with that index
+    assert ctl.add_chains(1) == [2]
+    assert ctl.chain_ids() == [0, 1, 2] and len(ctl.samples(2)) == 0
+    ctl.run_sweeps(2)
+    assert len(ctl.samples(2)) == 2
+    res = infer(*demo, InferenceConfig(chains=3, sweeps=2, seed=1, workers=1), progress=False)
+    assert np.array_equal(ctl.samples(2), res.samples[2]) and np.array_equal(ctl.logliks(2), res.logliks[2])
+
+    # a removed chain stops, but its samples stay and count for the MAP
+    best_chain = ctl.map()[0]
+    before = ctl.map()
+    ctl.remove_chain(best_chain)
+    assert best_chain not in ctl.chain_ids() and best_chain in ctl.all_chain_ids()
+    assert ctl.map() == before
+    n = len(ctl.samples(best_chain))
+    ctl.run_sweeps(1)
+    assert len(ctl.samples(best_chain)) == n
+    best = max(((c, i) for c in ctl.all_chain_ids() for i in range(len(ctl.logliks(c)))),
+               key=lambda ci: ctl.logliks(ci[0])[ci[1]])
+    assert ctl.map()[:2] == best
+    with pytest.raises(ValueError, match="removed"):
+        ctl.resume(best_chain)
+    with pytest.raises(ValueError, match="no chain"):
+        ctl.pause(99)
+    kinds = [e["kind"] for e in ctl.events]
+    assert kinds == ["init", "pause", "resume", "add_chains", "remove_chain"]
+
+
+def test_reset_chain_and_set_chain(make):
+    ctl = make(chains=2, seed=2)
+    ctl.run_sweeps(3)
+    c_map, i_map, map_values, _ = ctl.map()
+    other = 1 - c_map
+    ctl.reset_chain(other, "map")
+    assert ctl.position(other) == map_values
+    ev = ctl.events[-1]
+    assert ev["kind"] == "reset_chain" and ev["sweep"] == 3 and ev["detail"]["sample"] == [c_map, i_map]
+    ctl.run_sweeps(1)  # the next sweep starts at the MAP: narrow moves only
+    step = ctl.samples(other)[-1] - np.array([map_values[n] for n in NAMES])
+    assert np.all(np.abs(step) <= 0.05 + 1e-12)
+
+    ctl.reset_chain(c_map, "sample", (other, 0))
+    assert ctl.position(c_map) == ctl.sample(other, 0)
+
+    hand = {"m1_kg": 0.3, "k1": 0.2, "m2_kg": 0.6, "k2": 0.4}
+    ctl.set_chain(0, hand)
+    assert ctl.position(0) == hand and ctl.events[-1]["kind"] == "set_chain"
+    ctl.set_chain(0, {"k1": 0.25})
+    assert ctl.position(0) == {**hand, "k1": 0.25}
+    for bad in ({"k1": 1.5}, {"mass": 1.0}, {"k1": float("nan")}):
+        with pytest.raises(ValueError):
+            ctl.set_chain(0, bad)
+    with pytest.raises(ValueError):
+        ctl.reset_chain(0, "somewhere")
+
+
+def test_set_sigma_applies_from_the_next_sweep(demo, make):
+    ctl = make(chains=2, seed=0)
+    ctl.run_sweeps(2)
+    ctl.set_sigma(0.1)
+    ev = ctl.events[-1]
+    assert ev["kind"] == "sigma" and ev["sweep"] == 2 and ev["detail"] == {"sigma_mps": 0.1, "old": 0.05}
+    assert ev["chain_sweeps"] == {"0": 2, "1": 2}
+    ctl.run_sweeps(2)
+    s, ll = ctl.samples(0), ctl.logliks(0)
+    for k in range(4):  # logliks as VelocityLikelihood computes them under each sweep's sigma
+        assert ll[k] == lik_at(demo, 0.05 if k < 2 else 0.1, s[k]), k
+    assert ctl.settings.sigma_mps == 0.1 and ctl.status()["settings"]["sigma_mps"] == 0.1
+    for bad in (0, -1, float("inf"), "x"):
+        with pytest.raises(ValueError, match="sigma"):
+            ctl.set_sigma(bad)
+
+
+def test_set_bounds_pulls_chains_inside_and_set_widths(make):
+    ctl = make(chains=2, seed=0)
+    ctl.run_sweeps(2)
+    k1 = [ctl.position(c)["k1"] for c in (0, 1)]
+    lo, hi = 0.05, min(k1) - 0.01          # both chains now lie above the new bound
+    ctl.set_bounds("k1", lo, hi)
+    ev = ctl.events[-1]
+    assert ev["kind"] == "bounds" and ev["sweep"] == 2 and ev["detail"]["old"] == [0.0, 1.0]
+    assert set(ev["detail"]["moved"]) == {"0", "1"}
+    assert ev["detail"]["moved"]["0"] == {"from": k1[0], "to": hi}
+    assert all(ctl.position(c)["k1"] == hi for c in (0, 1))
+    assert ctl.settings.bounds["k1"] == (lo, hi)
+    ctl.set_widths(0.01, 0.1, 5)
+    ev = ctl.events[-1]
+    assert ev["kind"] == "widths" and ev["sweep"] == 2
+    assert ev["detail"]["old"] == {"narrow": 0.05, "broad": 0.5, "broad_every": 20}
+    ctl.run_sweeps(3)
+    for c in (0, 1):
+        assert np.all((ctl.samples(c)[2:, 1] >= lo) & (ctl.samples(c)[2:, 1] <= hi))
+        width = ctl.proposals(c)["width"]
+        assert np.all(width[:8] == 0.05)                       # sweeps 1-2
+        assert np.all(width[8:16] == 0.01) and np.all(width[16:20] == 0.1)   # 3, 4; the 5th is broad
+    for args in (("k1", 0.5, 0.5), ("k1", 0.6, 0.4), ("m1_kg", 0.0, 1.0), ("k2", -0.1, 1.0),
+                 ("mass", 0.1, 1.0), ("k1", float("nan"), 1.0)):
+        with pytest.raises(ValueError) as e:
+            ctl.set_bounds(*args)
+        assert "\n" not in str(e.value)
+    for args in ((0, 0.5, 20), (0.05, -1, 20), (0.05, 0.5, -1), (0.05, 0.5, 2.5)):
+        with pytest.raises(ValueError):
+            ctl.set_widths(*args)
+    assert [e["kind"] for e in ctl.events] == ["init", "bounds", "widths"]
+
+
+def test_steering_during_a_sweep_applies_after_it(demo, make):
+    """A change made while a round is in flight does not wait for it, leaves it alone (it
+    finishes with the old settings and its result is kept) and applies right after it."""
+    ctl = make(chains=3, seed=0, workers=1)
+    runner = threading.Thread(target=ctl.run_sweeps, args=(1,))
+    runner.start()
+    deadline = time.monotonic() + 10
+    while not ctl._in_flight and runner.is_alive() and time.monotonic() < deadline:
+        pass
+    assert ctl._in_flight, "could not catch the round in flight"
+    hand = {"m1_kg": 0.3, "k1": 0.2, "m2_kg": 0.6, "k2": 0.4}
+    ctl.set_sigma(0.1)
+    ctl.set_chain(0, hand)
+    assert ctl._in_flight and len(ctl.samples(0)) == 0   # queued, not waited for
+    runner.join()
+    assert [e["kind"] for e in ctl.events] == ["init", "sigma", "set_chain"]
+    assert all(e["sweep"] == 1 for e in ctl.events[1:])
+    assert ll_ok(demo, ctl, 0, 0.05) and ctl.position(0) == hand   # the sweep's result did not undo it
+    ctl.run_sweeps(1)
+    assert ll_ok(demo, ctl, 1, 0.1)
+    assert np.all(np.abs(ctl.samples(0)[1] - [hand[n] for n in NAMES]) <= 0.05 + 1e-12)
+
+
+def ll_ok(demo, ctl, index, sigma):
+    return all(ctl.logliks(c)[index] == lik_at(demo, sigma, ctl.samples(c)[index]) for c in ctl.chain_ids())
+
+
+def test_settings_are_checked(demo):
+    bounds = {n: (0.001, 1.0) for n in NAMES}
+    with pytest.raises(ValueError, match="m1_kg"):
+        Controller(*demo, chains=1, workers=1, settings=Settings({**bounds, "m1_kg": (0.0, 1.0)}))
+    with pytest.raises(ValueError, match="sigma"):
+        Controller(*demo, chains=1, workers=1, settings=Settings(bounds, sigma_mps=0.0))
+
+
+# -- sessions ---------------------------------------------------------------------------------------------
+
+def test_session_saved_mid_run_reloads_the_same(make, tmp_path):
+    folder = sess.new_session_dir(tmp_path / "sessions", "demo run")
+    assert re.fullmatch(r"\d{8}-\d{6}-demo-run", folder.name) and folder.is_dir()
+    again = sess.new_session_dir(tmp_path / "sessions", "demo run")
+    assert again != folder and again.is_dir() and re.fullmatch(r"\d{8}-\d{6}-demo-run(-2)?", again.name)
+    ctl = make(chains=2, seed=0, session_dir=folder)
+    ctl.run_sweeps(2)
+    ctl.set_sigma(0.08)
+    ctl.pause(1)
+    ctl.run_sweeps(1)
+    ctl.save()
+    assert sorted(p.name for p in folder.iterdir()) == sorted(sess.FILES)
+    with np.load(folder / "record.npz", allow_pickle=False) as z:
+        assert z["c0_samples"].shape == (3, 4) and z["c1_samples"].shape == (2, 4)
+    for name in ("scene.json", "tracks.json", "settings.json", "events.json", "chains.json"):
+        json.loads((folder / name).read_text())
+    back = Controller.load(folder, workers=1)
+    try:
+        same_chains(ctl, back)
+        assert back.map() == ctl.map() and back.events == ctl.events
+        assert back.chain_ids() == ctl.chain_ids() and back.settings == ctl.settings
+        a, b = ctl.status(), back.status()
+        for k in ("rounds", "sweeps", "proposals", "accepted", "chains", "acceptance", "r_hat", "map"):
+            assert a[k] == b[k], k
+    finally:
+        back.close()
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_resumed_session_equals_an_uninterrupted_run(make, tmp_path, workers):
+    """6 sweeps, a sigma change (logdensities left stale), save, load, 4 more == 10 in one go."""
+    first = make(chains=2, seed=7, workers=workers, session_dir=tmp_path / "s")
+    first.run_sweeps(6)
+    first.set_sigma(0.07)
+    first.close()
+    resumed = Controller.load(tmp_path / "s", workers=workers)
+    try:
+        resumed.run_sweeps(4)
+        whole = make(chains=2, seed=7, workers=workers)
+        whole.run_sweeps(6)
+        whole.set_sigma(0.07)
+        whole.run_sweeps(4)
+        same_chains(resumed, whole)
+        assert resumed.map() == whole.map()
+        strip = [{k: v for k, v in e.items() if k != "time"} for e in whole.events]
+        assert [{k: v for k, v in e.items() if k != "time"} for e in resumed.events] == strip
+    finally:
+        resumed.close()
+
+
+def test_a_crash_between_two_files_loads_the_last_complete_state(make, tmp_path):
+    """chains.json is written last: with older chains.json beside newer record, events and
+    settings (a crash in between), the session loads as of that chains.json and goes on as if
+    the later sweeps had never happened."""
+    ctl = make(chains=2, seed=5, session_dir=tmp_path / "s")
+    ctl.run_sweeps(2)
+    ctl.save()
+    committed = (tmp_path / "s" / "chains.json").read_bytes()
+    ctl.set_sigma(0.09)
+    ctl.set_bounds("k2", 0.1, 0.9)
+    ctl.run_sweeps(2)
+    ctl.close()
+    (tmp_path / "s" / "chains.json").write_bytes(committed)
+    back = Controller.load(tmp_path / "s", workers=1)
+    try:
+        assert [len(back.samples(c)) for c in (0, 1)] == [2, 2]
+        assert [e["kind"] for e in back.events] == ["init"] and back.settings.sigma_mps == 0.05
+        back.run_sweeps(2)
+        whole = make(chains=2, seed=5)
+        whole.run_sweeps(4)
+        same_chains(back, whole)
+    finally:
+        back.close()
+
+
+@pytest.fixture
+def saved_session(make, tmp_path):
+    ctl = make(chains=2, seed=0, session_dir=tmp_path / "good")
+    ctl.run_sweeps(2)
+    ctl.close()
+    return tmp_path / "good"
+
+
+@pytest.mark.parametrize("name, damage", [
+    ("record.npz", "truncate"), ("record.npz", "garbage"), ("chains.json", "invalid"),
+    ("events.json", "invalid"), ("settings.json", "invalid"), ("scene.json", "invalid"),
+    ("tracks.json", "invalid"), ("chains.json", "wrong"), ("settings.json", "wrong"),
+    ("scene.json", "wrong"), ("tracks.json", "wrong"), ("events.json", "missing"), ("record.npz", "missing"),
+])
+def test_damaged_session_is_a_one_line_error_naming_the_file(saved_session, tmp_path, name, damage):
+    folder = tmp_path / "bad"
+    shutil.copytree(saved_session, folder)
+    path = folder / name
+    if damage == "truncate":
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    elif damage == "garbage":
+        path.write_bytes(b"not a zip file")
+    elif damage == "invalid":
+        path.write_text(path.read_text()[:-20])
+    elif damage == "wrong":
+        d = json.loads(path.read_text())
+        if name == "chains.json":
+            d["chains"][0]["rng"] = "nope"
+        elif name == "settings.json":
+            d["sigma_mps"] = -1
+        elif name == "scene.json":
+            d["objects"][0]["mass_kg"] = "heavy"
+        else:
+            del d["objects"]
+        path.write_text(json.dumps(d))
+    else:
+        path.unlink()
+    with pytest.raises(GalileoError) as e:
+        Controller.load(folder, workers=1)
+    msg = str(e.value)
+    assert name in msg and "\n" not in msg and e.value.__cause__ is None
+
+
+def test_missing_session_folder(tmp_path):
+    with pytest.raises(GalileoError, match="session folder not found"):
+        Controller.load(tmp_path / "nowhere", workers=1)
+
+
+def test_a_session_folder_is_not_overwritten(saved_session, demo):
+    with pytest.raises(GalileoError, match="already holds a session"):
+        Controller(*demo, chains=1, workers=1, session_dir=saved_session)
+
+
+# -- the background thread -----------------------------------------------------------------------------------
+
+def test_start_stop_in_the_background(demo, make, tmp_path):
+    ctl = make(chains=2, seed=0, workers=2, session_dir=tmp_path / "bg", save_every_s=0.2)
+    heard = []
+    main = threading.get_ident()
+    ctl.add_listener(lambda kind, payload: heard.append((kind, payload, threading.get_ident())))
+    ctl.start()
+    assert ctl.running
+    deadline = time.monotonic() + 30
+    while len(ctl.samples(0)) < 3 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert len(ctl.samples(0)) >= 3
+    ctl.set_sigma(0.08)          # while rounds run: applies between two of them
+    n = len(ctl.samples(0))
+    while len(ctl.samples(0)) < n + 2 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    t0 = time.monotonic()
+    ctl.stop()
+    assert time.monotonic() - t0 < 3 and not ctl.running
+    assert ctl.status()["error"] is None
+
+    ev = next(e for e in ctl.events if e["kind"] == "sigma")
+    k = ev["chain_sweeps"]["0"]
+    s, ll = ctl.samples(0), ctl.logliks(0)
+    assert 3 <= k < len(s)
+    assert ll[k - 1] == lik_at(demo, 0.05, s[k - 1]) and ll[k] == lik_at(demo, 0.08, s[k])
+
+    # listeners: from the runner thread, sweeps of every round and the event in order
+    rounds = [p for kind, p, _ in heard if kind == "sweeps"]
+    assert [p["round"] for p in rounds] == list(range(1, ctl.status()["rounds"] + 1))
+    assert all(tid != main for kind, _, tid in heard if kind == "sweeps")
+    kinds = [(kind, p.get("kind")) for kind, p, _ in heard]
+    assert ("event", "sigma") in kinds and kinds[0] == ("event", "init")
+    sigma_at = kinds.index(("event", "sigma"))
+    assert [p["round"] for kind, p, _ in heard[:sigma_at] if kind == "sweeps"][-1] == ev["sweep"]
+    chain, sweep, loglik, values = rounds[-1]["results"][0]
+    assert chain == 0 and sweep == len(s) and loglik == ll[-1] and values == ctl.sample(0, -1)
+
+    # the session on disk is complete
+    back = Controller.load(tmp_path / "bg", workers=1)
+    try:
+        same_chains(ctl, back)
+        assert back.events == ctl.events and back.map() == ctl.map()
+    finally:
+        back.close()

@@ -1,0 +1,254 @@
+"""ui.rerun_log: what RerunLogger writes, read back with rerun's own .rrd reader."""
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import textwrap
+import time
+import urllib.request
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+rr = pytest.importorskip("rerun")
+chunk = pytest.importorskip("rerun.chunk")   # needs rerun-sdk[catalog]
+
+from ui import rerun_log  # noqa: E402
+from ui.rerun_log import RRD_NAME, RerunLogger  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+LATENTS = ("m1_kg", "k1", "m2_kg", "k2")
+
+
+def read_rrd(path: Path) -> dict[str, list[tuple[set[str], dict]]]:
+    """entity path (without the leading '/') -> [(timeline names, columns as lists)] per chunk."""
+    out = defaultdict(list)
+    for ch in chunk.RrdReader(path).stream().to_chunks():
+        out[ch.entity_path.lstrip("/")].append((set(ch.timeline_names), ch.to_record_batch().to_pydict()))
+    return dict(out)
+
+
+def series(entities, entity: str, timeline: str, column: str) -> list:
+    """(time, value) rows of one component on one timeline, in time order."""
+    rows = []
+    for timelines, cols in entities.get(entity, []):
+        if timeline in timelines and column in cols:
+            rows += zip(cols[timeline], cols[column])
+    return sorted(rows, key=lambda r: r[0])
+
+
+def blueprint_queries(path: Path) -> list[list[str]]:
+    """The view-content queries of every blueprint stored in the file."""
+    reader = chunk.RrdReader(path)
+    out = []
+    for bp in reader.blueprints():
+        qs = []
+        for ch in reader.stream(store=bp).to_chunks():
+            cols = ch.to_record_batch().to_pydict()
+            for q in cols.get("ViewContents:query", []):
+                qs += q or []
+        out.append(qs)
+    return out
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def demo_tracks(demo_dir):
+    from galileo.scene import Scene
+    from galileo.tracking import track
+
+    return track(demo_dir / "video.mp4", Scene.load(demo_dir / "scene.json"), progress=False)
+
+
+def test_save_sweeps_posterior_event_simulation(tmp_path):
+    from galileo.physics import Simulator
+    from galileo.scene import default_scene
+
+    traj = Simulator(default_scene(20, target="cardboard")).run(20)
+    rng = np.random.default_rng(1)
+    logged = {c: {"loglik": [], **{n: [] for n in LATENTS}} for c in range(3)}
+    log = RerunLogger("save", session_dir=tmp_path, recording_id="test-save")
+    # a simulation first: its frame cursor must not leak onto the sweep rows
+    log.log_simulation(traj)
+    for sweep in range(6):
+        for c in range(3):
+            values = {n: float(v) for n, v in zip(LATENTS, rng.uniform(0.1, 5.0, 4))}
+            ll = float(-rng.uniform(10, 1000))
+            log.log_sweep(c, sweep, ll, values)
+            logged[c]["loglik"].append(ll)
+            for n, v in values.items():
+                logged[c][n].append(v)
+        if sweep == 3:
+            log.log_event(sweep, "prior edit: k1 in [0.2, 0.6]")
+    samples = rng.uniform(0.1, 5.0, (3, 6, 4))
+    bounds = {n: (0.0, 5.0) for n in LATENTS}
+    log.log_posterior(LATENTS, samples, bounds, bins=10)
+    log.close()
+    log.close()   # idempotent
+
+    path = tmp_path / RRD_NAME
+    assert path.is_file() and path.stat().st_size > 0
+    ents = read_rrd(path)
+    for c in range(3):
+        for leaf, values in logged[c].items():
+            rows = series(ents, f"chains/{c}/{leaf}", "sweep", "Scalars:scalars")
+            assert [t for t, _ in rows] == list(range(6))
+            assert [v[0] for _, v in rows] == values          # exact float64 round trip, in order
+        for timelines, cols in ents[f"chains/{c}/loglik"]:
+            assert "frame" not in timelines
+    for n in LATENTS:
+        (timelines, cols), = [e for e in ents[f"posterior/{n}"] if "BarChart:values" in e[1]]
+        assert not timelines                                  # static
+        hist = cols["BarChart:values"][0][0]
+        assert hist["shape"] == [10] and sum(hist["buffer"]) == samples.size // 4
+        assert len(cols["BarChart:abscissa"][0][0]["buffer"]) == 10
+    events = series(ents, "events", "sweep", "TextLog:text")
+    assert events == [(3, ["prior edit: k1 in [0.2, 0.6]"])]
+    for name in traj.names:
+        pts = series(ents, f"sim/{name}", "frame", "Points3D:positions")
+        assert [t for t, _ in pts] == list(range(20))
+        np.testing.assert_allclose(np.array([p[0] for _, p in pts]), traj.position_m[traj.names.index(name)],
+                                   rtol=1e-6, atol=1e-6)
+        assert any("LineStrips3D:strips" in cols for _, cols in ents[f"sim/{name}"])
+    # the default blueprint was extended to the chains and latents seen
+    queries = blueprint_queries(path)
+    assert any({"/chains/2/loglik", "/chains/0/k2", "/chains/2/m1_kg"} <= set(q) for q in queries)
+
+
+def test_known_layout_sends_one_blueprint(tmp_path):
+    log = RerunLogger("save", session_dir=tmp_path, latents=LATENTS, n_chains=2)
+    for sweep in range(3):
+        for c in range(2):
+            log.log_sweep(c, sweep, -1.0, dict.fromkeys(LATENTS, 1.0))
+    log.close()
+    queries = blueprint_queries(tmp_path / RRD_NAME)
+    assert len(queries) == 1 and "/chains/1/k2" in queries[0]
+
+
+def test_log_video_demo(demo_dir, demo_tracks, tmp_path):
+    tracks = demo_tracks
+    log = RerunLogger("save", session_dir=tmp_path)
+    log.log_video(demo_dir / "video.mp4", tracks, tracks.fps)
+    log.close()
+    path = tmp_path / RRD_NAME
+    ents = read_rrd(path)
+    n = tracks.n_frames
+    video = ents["video"]
+    assert any(not tl and "AssetVideo:blob" in cols for tl, cols in video)
+    refs = series(ents, "video", "frame", "VideoFrameReference:timestamp")
+    assert [t for t, _ in refs] == list(range(n))
+    assert [r[0] for _, r in refs] == sorted(r[0] for _, r in refs)     # presentation order
+    for o in tracks.objects:
+        pts = series(ents, f"video/tracks/{o.name}", "frame", "Points2D:positions")
+        assert [t for t, _ in pts] == list(range(n))
+        assert len(pts[0][1]) == len(o.features_px[0]) > 0
+        np.testing.assert_allclose(np.array(pts[0][1]), o.features_px[0], atol=1e-3)
+        centre = series(ents, f"video/tracks/{o.name}/center", "frame", "Points2D:positions")
+        assert len(centre) == int(o.visible.sum())
+        assert series(ents, f"observed/{o.name}", "frame", "Points3D:positions")
+    print(f"demo video session .rrd: {path.stat().st_size} bytes "
+          f"(video.mp4 {(demo_dir / 'video.mp4').stat().st_size} bytes)")
+
+
+def test_log_video_falls_back_to_images(demo_dir, demo_tracks, tmp_path, monkeypatch):
+    def broken(*a, **k):
+        raise RuntimeError("no video support")
+
+    monkeypatch.setattr(rerun_log.rr, "AssetVideo", broken)
+    monkeypatch.setattr(rerun_log, "FALLBACK_MAX_FRAMES", 20)
+    log = RerunLogger("save", session_dir=tmp_path)
+    log.log_video(demo_dir / "video.mp4", demo_tracks, demo_tracks.fps)
+    log.close()
+    ents = read_rrd(tmp_path / RRD_NAME)
+    frames = [t for t, _ in series(ents, "video", "frame", "EncodedImage:blob")]
+    n = demo_tracks.n_frames
+    step = -(-n // 20)
+    assert frames == list(range(0, n, step)) and len(frames) <= 20
+    assert not series(ents, "video", "frame", "VideoFrameReference:timestamp")
+    assert series(ents, f"video/tracks/{demo_tracks.objects[0].name}", "frame", "Points2D:positions")
+
+
+def test_off_is_a_no_op(tmp_path):
+    from galileo.physics import Trajectory
+
+    log = RerunLogger("off", session_dir=tmp_path)
+    assert log.web_url is None and not log.enabled
+    log.log_video(tmp_path / "missing.mp4", None, 30.0)
+    log.log_sweep(0, 0, -1.0, {"k1": 0.3})
+    log.log_posterior(["k1"], np.ones((5, 1)), {"k1": (0.0, 1.0)})
+    log.log_event(0, "x")
+    log.log_simulation(Trajectory(30.0, ["a"], np.zeros((1, 3, 3)), np.zeros((1, 3, 3))))
+    log.flush()
+    log.close()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bad_arguments(tmp_path):
+    with pytest.raises(ValueError):
+        RerunLogger("loud", session_dir=tmp_path)
+    with pytest.raises(ValueError):
+        RerunLogger("save")
+    port = free_port()
+    t = time.monotonic()
+    with pytest.raises(RuntimeError, match="no rerun viewer"):
+        RerunLogger("connect", connect_url=f"rerun+http://127.0.0.1:{port}/proxy")
+    assert time.monotonic() - t < 5
+
+
+def test_connect_streams_to_a_server(tmp_path):
+    server = rr.RecordingStream("viewer-stand-in", recording_id="server")
+    sink = rr.GrpcServerSink("127.0.0.1", free_port())
+    server.set_sinks(sink)
+    try:
+        t = time.monotonic()
+        log = RerunLogger("connect", connect_url=sink.uri, session_dir=tmp_path)
+        for sweep in range(3):
+            log.log_sweep(0, sweep, -float(sweep), {"k1": 0.5})
+        log.close()
+        assert time.monotonic() - t < 10
+    finally:
+        server.disconnect()
+    rows = series(read_rrd(tmp_path / RRD_NAME), "chains/0/loglik", "sweep", "Scalars:scalars")
+    assert [v[0] for _, v in rows] == [0.0, -1.0, -2.0]
+
+
+def test_web_mode_serves_viewer(tmp_path):
+    """In a child process: rerun's web viewer cannot be stopped, the child's exit does it."""
+    web_port, grpc_port = free_port("0.0.0.0"), free_port()
+    script = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(ROOT)!r})
+        from ui.rerun_log import RerunLogger
+        log = RerunLogger("web", session_dir={str(tmp_path)!r}, web_port={web_port}, grpc_port={grpc_port})
+        log.log_sweep(0, 0, -5.0, {{"k1": 0.5}})
+        log.flush()
+        print(log.web_url, flush=True)
+        sys.stdin.readline()
+        log.close()
+    """)
+    child = subprocess.Popen([sys.executable, "-c", script], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                             text=True)
+    try:
+        url = child.stdout.readline().strip()
+        assert url.startswith(f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc_port}")
+        with urllib.request.urlopen(url, timeout=10) as page:
+            assert page.status == 200 and b"<html" in page.read(4096).lower()
+        with socket.create_connection(("127.0.0.1", grpc_port), timeout=2):
+            pass
+        child.stdin.write("\n")
+        child.stdin.flush()
+        assert child.wait(timeout=20) == 0
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    rows = series(read_rrd(tmp_path / RRD_NAME), "chains/0/loglik", "sweep", "Scalars:scalars")
+    assert [v[0] for _, v in rows] == [-5.0]

@@ -1,0 +1,954 @@
+"""Live, steerable inference: the API the browser app's viewer and rerun logger call.
+
+The chains are those of `galileo.inference.infer` (the same kernel, `galileo.mcmc.sweep`, the
+same random streams and starts), run round by round so that they can be watched and steered:
+
+* A round does one sweep of every running chain in worker processes (fork; each worker
+  builds the `VelocityLikelihood` once). The parent holds every chain's state (position,
+  logdensity, sweep count, numpy bit-generator state) and sends it with the task, so a chain's
+  random stream is the same whatever worker runs it: chain c starts from
+  SeedSequence(seed, spawn_key=(c,)) (`galileo.mcmc.chain_rng`) at
+  `galileo.inference.initial_positions(bounds, c + 1, seed)[c]`, and a seed gives the batch
+  runner's chains bit for bit, for any number of workers.
+* `start()` runs rounds in a background thread, `run_sweeps(n)` runs n rounds synchronously.
+* Steering (`set_bounds`, `set_sigma`, `set_widths`, `pause`, `resume`, `add_chains`,
+  `remove_chain`, `reset_chain`, `set_chain`) is thread-safe and applies between rounds: a
+  round in flight finishes with the old settings, and the change, queued, applies right after
+  it. Each change is recorded as an event
+
+      {"sweep": rounds completed when it took effect (the global sweep count),
+       "time": unix time, "kind": ..., "detail": {...},
+       "chain_sweeps": {"<chain>": that chain's sweep count then, for every active chain}}
+
+  so a chain's samples from index chain_sweeps[c] on were drawn under the change.
+* A chain whose position or target changed (sigma changed, a bound shrank past it, reset or
+  set by hand) has its logdensity recomputed in the worker at the start of its next sweep,
+  before proposing; a new chain's is computed there too (as `galileo.mcmc.init` does).
+* Listeners `fn(kind, payload)` are called from the thread that runs the rounds (outside the
+  controller's lock): "sweeps" after each round with {"round", "results": [(chain, sweep,
+  loglik, values), ...]} where `sweep` is the chain's sweep count (its sample index + 1), and
+  "event" with each event dict, in the order things happened. Without a background thread
+  an event is delivered by the steering call itself. "error" with {"message"} if a round fails
+  in the background thread (the thread then stops).
+* With a `session_dir` the state is saved there (see `ui.session`) at most every
+  `save_every_s` while rounds run, on `stop()`, `close()` and `save()`; `Controller.load`
+  restores it exactly and the chains go on as if never interrupted.
+"""
+from __future__ import annotations
+
+import copy
+import logging
+import math
+import multiprocessing as mp
+import os
+import threading
+import time
+from collections import deque
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from galileo.errors import GalileoError
+from galileo.inference import BURN_IN_FRACTION, initial_positions
+from galileo.likelihood import SIGMA_MPS, VelocityLikelihood, scene_for_inference
+from galileo.mcmc import MHState, Proposal, chain_rng
+from galileo.mcmc import sweep as mh_sweep
+from galileo.scene import Scene, scene_from_json
+from galileo.tracking import Tracks
+
+from . import session as sess
+
+log = logging.getLogger(__name__)
+
+Listener = Callable[[str, dict], None]
+
+
+# -- settings -----------------------------------------------------------------------------------------
+
+@dataclass
+class Settings:
+    bounds: dict[str, tuple[float, float]]   # prior bounds per latent (uniform priors)
+    sigma_mps: float = SIGMA_MPS
+    narrow: float = 0.05
+    broad: float = 0.5
+    broad_every: int = 20
+
+    def copy(self) -> "Settings":
+        return Settings({k: (float(v[0]), float(v[1])) for k, v in self.bounds.items()},
+                        float(self.sigma_mps), float(self.narrow), float(self.broad), int(self.broad_every))
+
+    def proposal(self) -> Proposal:
+        return Proposal(float(self.narrow), float(self.broad), int(self.broad_every))
+
+    def to_json(self) -> dict:
+        return {"bounds": {k: [float(v[0]), float(v[1])] for k, v in self.bounds.items()},
+                "sigma_mps": float(self.sigma_mps), "sigma_is": "standard deviation (m/s)",
+                "narrow": float(self.narrow), "broad": float(self.broad), "broad_every": int(self.broad_every)}
+
+    @classmethod
+    def from_json(cls, d: dict, names) -> "Settings":
+        """Parse and check (ValueError on a bad value)."""
+        bounds = {n: _check_bound(n, *d["bounds"][n], names=names) for n in names}
+        extra = set(d["bounds"]) - set(names)
+        if extra:
+            raise ValueError(f"bounds for unknown latents {sorted(extra)}")
+        sigma = _check_sigma(d["sigma_mps"])
+        return cls(bounds, sigma, *_check_widths(d["narrow"], d["broad"], d["broad_every"]))
+
+
+def _number(x, what: str) -> float:
+    if isinstance(x, bool):
+        raise ValueError(f"{what}: expected a number, got {x!r}")
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what}: expected a number, got {x!r}") from None
+    if not math.isfinite(v):
+        raise ValueError(f"{what}: expected a finite number, got {x!r}")
+    return v
+
+
+def _check_bound(name: str, lo, hi, *, names) -> tuple[float, float]:
+    if name not in names:
+        raise ValueError(f"unknown latent {name!r}; expected one of {', '.join(names)}")
+    lo, hi = _number(lo, f"{name} low bound"), _number(hi, f"{name} high bound")
+    if not lo < hi:
+        raise ValueError(f"{name}: the low bound ({lo:g}) must be below the high bound ({hi:g})")
+    if name.endswith("_kg") and lo <= 0:
+        raise ValueError(f"{name}: a mass must be > 0 kg, got a low bound of {lo:g}")
+    if not name.endswith("_kg") and lo < 0:
+        raise ValueError(f"{name}: a friction coefficient must be >= 0, got a low bound of {lo:g}")
+    return lo, hi
+
+
+def _check_sigma(sigma) -> float:
+    s = _number(sigma, "sigma_mps")
+    if s <= 0:
+        raise ValueError(f"sigma_mps must be > 0 m/s, got {s:g}")
+    return s
+
+
+def _check_widths(narrow, broad, broad_every) -> tuple[float, float, int]:
+    n, b = _number(narrow, "narrow"), _number(broad, "broad")
+    if n <= 0 or b <= 0:
+        raise ValueError(f"proposal widths must be > 0, got narrow={n:g} broad={b:g}")
+    e = _number(broad_every, "broad_every")
+    if e < 0 or e != int(e):
+        raise ValueError(f"broad_every must be an integer >= 0 (0: never broad), got {broad_every!r}")
+    return n, b, int(e)
+
+
+# -- worker side ----------------------------------------------------------------------------------------
+
+_worker: dict = {}
+
+
+def _worker_init(scene_json: dict, tracks_json: dict, sigma: float) -> None:
+    """Runs once in each worker: the likelihood (with the worker's own pybullet client)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the app's to handle: it stops the pool
+    scene, tracks = scene_from_json(scene_json), Tracks.from_json(tracks_json)
+    _worker.update(scene=scene, tracks=tracks, lik=VelocityLikelihood(scene, tracks, sigma, speedups=True))
+
+
+def _worker_likelihood(sigma: float) -> VelocityLikelihood:
+    lik = _worker["lik"]
+    if lik.sigma_mps != sigma:
+        # Its saved prefixes hold terms scaled by the old sigma: a fresh likelihood (the old
+        # one's few saved world states stay behind in the worker's world, unused).
+        lik = _worker["lik"] = VelocityLikelihood(_worker["scene"], _worker["tracks"], sigma, speedups=True)
+    return lik
+
+
+def _ping(_=None) -> int:
+    return os.getpid()
+
+
+def _sweep_task(task: tuple) -> dict:
+    """One sweep of one chain, from the state the parent holds."""
+    chain, position, logdensity, sweep_count, rng_state, bounds, proposal, sigma = task
+    lik = _worker_likelihood(sigma)
+    steps0 = lik.steps
+    pos = np.asarray(position, float).copy()
+    evaluated = logdensity is None
+    if evaluated:  # a new chain, or its position / sigma changed
+        logdensity = float(lik(pos)[0])
+    bit_gen = getattr(np.random, rng_state["bit_generator"])()
+    bit_gen.state = rng_state
+    rng = np.random.Generator(bit_gen)
+    state, infos = mh_sweep(rng, MHState(pos, float(logdensity), int(sweep_count)), lik, bounds, proposal, True)
+    return {"chain": chain, "position": state.position, "logdensity": float(state.logdensity),
+            "sweep": int(state.sweep), "rng": bit_gen.state, "evaluated": evaluated,
+            "site": np.array([i.site for i in infos], np.int8),
+            "proposal": np.array([i.proposal for i in infos], float),
+            "proposal_loglik": np.array([i.logdensity for i in infos], float),
+            "accepted": np.array([i.accepted for i in infos], bool),
+            "early_stop": np.array([i.early_stop for i in infos], bool),
+            "width": np.array([i.width for i in infos], float),
+            "steps": lik.steps - steps0}
+
+
+# -- chain state -----------------------------------------------------------------------------------------
+
+class _Buf:
+    """A growable array (amortised appends; `get` copies the filled part)."""
+
+    def __init__(self, dtype, width: int | None = None, data: np.ndarray | None = None):
+        self.width = width
+        if data is not None:
+            self.a = np.array(data, dtype=dtype).reshape((-1,) if width is None else (-1, width))
+            self.n = len(self.a)
+        else:
+            self.a = np.empty((16,) if width is None else (16, width), dtype)
+            self.n = 0
+
+    def extend(self, rows) -> None:
+        rows = np.asarray(rows, self.a.dtype)
+        k = len(rows)
+        if self.n + k > len(self.a):
+            new = np.empty((max(2 * len(self.a), self.n + k, 16),) + self.a.shape[1:], self.a.dtype)
+            new[:self.n] = self.a[:self.n]
+            self.a = new
+        self.a[self.n:self.n + k] = rows
+        self.n += k
+
+    def get(self) -> np.ndarray:
+        return self.a[:self.n].copy()
+
+    def __len__(self) -> int:
+        return self.n
+
+
+_PROPOSAL_FIELDS = {"site": (np.int8, False), "proposal": (float, True), "proposal_loglik": (float, False),
+                    "accepted": (bool, False), "early_stop": (bool, False), "width": (float, False)}
+
+
+class _Chain:
+    def __init__(self, cid: int, start: np.ndarray, rng_state: dict, dim: int):
+        self.id = cid
+        self.start = np.asarray(start, float).copy()
+        self.position = self.start.copy()
+        self.logdensity: float | None = None   # None: evaluate at the start of the next sweep
+        self.sweep = 0
+        self.paused = False
+        self.removed = False
+        self.rng_state = rng_state
+        self.samples = _Buf(float, dim)
+        self.logliks = _Buf(float)
+        self.proposals = {k: _Buf(t, dim if wide else None) for k, (t, wide) in _PROPOSAL_FIELDS.items()}
+        self.best: tuple[int, float] | None = None   # (sample index, loglik) of the chain's best sample
+
+    def note_best(self, first: int = 0) -> None:
+        ll = self.logliks.a[:self.logliks.n]
+        for i in range(first, len(ll)):
+            if self.best is None or ll[i] > self.best[1]:
+                self.best = (i, float(ll[i]))
+
+    def to_json(self) -> dict:
+        return {"id": self.id, "start": self.start.tolist(), "position": self.position.tolist(),
+                "logdensity": self.logdensity, "sweep": self.sweep, "paused": self.paused,
+                "removed": self.removed, "rng": self.rng_state, "n_samples": len(self.samples),
+                "n_proposals": len(self.proposals["site"])}
+
+
+# -- the controller ------------------------------------------------------------------------------------------
+
+class Controller:
+    """Live multi-chain MH over Bullet with steering, listeners and recorded sessions."""
+
+    def __init__(self, scene: Scene, tracks: Tracks, *, chains: int = 16, seed: int = 0,
+                 workers: int | None = None, settings: Settings | None = None,
+                 session_dir: str | Path | None = None, save_every_s: float = 1.0):
+        if int(chains) != chains or chains < 0:
+            raise ValueError(f"chains must be an integer >= 0, got {chains!r}")
+        names = VelocityLikelihood(scene, tracks).names   # checks scene against tracks
+        if settings is None:
+            settings = Settings({n: tuple(scene.priors.bounds[n]) for n in names})
+        else:
+            unknown = set(settings.bounds) - set(names)
+            if unknown:
+                raise ValueError(f"bounds for unknown latents {sorted(unknown)}; expected {', '.join(names)}")
+            bounds = {n: settings.bounds.get(n, scene.priors.bounds[n]) for n in names}
+            settings = Settings({n: _check_bound(n, *bounds[n], names=names) for n in names},
+                                _check_sigma(settings.sigma_mps),
+                                *_check_widths(settings.narrow, settings.broad, settings.broad_every))
+        if session_dir is not None:
+            session_dir = Path(session_dir)
+            if (session_dir / sess.CHAINS_FILE).exists():
+                raise GalileoError(f"{session_dir} already holds a session; open it with Controller.load")
+        self._setup(scene, tracks, names, int(seed), workers, settings, session_dir, save_every_s)
+        with self._lock:
+            ids = list(range(int(chains)))
+            self._create_chains(ids)
+            self._event("init", {"seed": self.seed, "chains": ids, "settings": self._settings.to_json(),
+                                 "starts": {str(c): self._chains[c].start.tolist() for c in ids}})
+        if self.session_dir is not None:
+            self.session_dir.mkdir(parents=True, exist_ok=True)
+            sess.write_static(self.session_dir, self._scene_json, self._tracks_json)
+            self.save()
+        self._start_pool()
+
+    def _setup(self, scene, tracks, names, seed, workers, settings, session_dir, save_every_s) -> None:
+        self.scene, self.tracks = scene, tracks
+        self._likelihood_scene: Scene | None = None
+        self.names: tuple[str, ...] = tuple(names)
+        self.seed = seed
+        self.workers = max(1, int(workers or os.cpu_count() or 1))
+        self.session_dir = session_dir
+        self.save_every_s = float(save_every_s)
+        self._scene_json, self._tracks_json = scene.to_json(), tracks.to_json()
+        self._settings = settings
+        self._chains: dict[int, _Chain] = {}
+        self._next_id = 0
+        self._rounds = 0
+        self._steps = 0
+        self._acc_n = np.zeros(len(self.names), int)
+        self._acc_k = np.zeros(len(self.names), int)
+        self._events: list[dict] = []
+        self._lock = threading.RLock()
+        self._cond = threading.Condition(self._lock)
+        self._round_lock = threading.Lock()
+        self._save_lock = threading.Lock()
+        self._deliver_lock = threading.RLock()
+        self._in_flight = False
+        self._pending: list[Callable[[], None]] = []
+        self._notices: deque = deque()
+        self._listeners: list[Listener] = []
+        self._thread: threading.Thread | None = None
+        self._stop_evt = threading.Event()
+        self._pool: ProcessPoolExecutor | None = None
+        self._closed = False
+        self._error: str | None = None
+        self._dirty = True
+        self._last_save = -math.inf
+
+    # -- workers ------------------------------------------------------------------------------------------
+    def _start_pool(self) -> ProcessPoolExecutor:
+        if self._pool is None:
+            ctx = mp.get_context("fork")
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_worker_init,
+                                             initargs=(self._scene_json, self._tracks_json,
+                                                       self._settings.sigma_mps))
+            try:  # fork every worker now, from this thread, before any runner thread exists
+                for f in [self._pool.submit(_ping) for _ in range(self.workers)]:
+                    f.result()
+            except BrokenProcessPool as e:
+                self._pool = None
+                raise GalileoError(f"inference workers failed to start: {e}") from None
+        return self._pool
+
+    # -- rounds ----------------------------------------------------------------------------------------------
+    def _round(self) -> bool:
+        """One sweep of every running chain; False if none is running."""
+        with self._round_lock:
+            with self._lock:
+                if self._closed:
+                    raise GalileoError("the controller is closed")
+                run = [ch for _, ch in sorted(self._chains.items()) if not ch.paused and not ch.removed]
+                if not run:
+                    return False
+                s = self._settings
+                bounds = self._bounds_array()
+                proposal = s.proposal()
+                tasks = [(ch.id, ch.position.copy(), ch.logdensity, ch.sweep, copy.deepcopy(ch.rng_state),
+                          bounds, proposal, s.sigma_mps) for ch in run]
+                self._in_flight = True
+            try:
+                pool = self._start_pool()
+                results = [f.result() for f in [pool.submit(_sweep_task, t) for t in tasks]]
+            except BaseException as e:
+                with self._lock:
+                    self._in_flight = False
+                    self._apply_pending()
+                if isinstance(e, BrokenProcessPool):
+                    self._pool = None
+                if isinstance(e, GalileoError):
+                    raise
+                if isinstance(e, Exception):
+                    raise GalileoError(f"an inference worker failed: {type(e).__name__}: {e}") from e
+                raise
+            with self._lock:
+                out = []
+                for r in results:
+                    ch = self._chains[r["chain"]]
+                    ch.position = np.asarray(r["position"], float)
+                    ch.logdensity = r["logdensity"]
+                    ch.sweep = r["sweep"]
+                    ch.rng_state = r["rng"]
+                    ch.samples.extend(ch.position[None])
+                    ch.logliks.extend([ch.logdensity])
+                    for k in _PROPOSAL_FIELDS:
+                        ch.proposals[k].extend(r[k])
+                    ch.note_best(len(ch.logliks) - 1)
+                    np.add.at(self._acc_n, r["site"].astype(int), 1)
+                    np.add.at(self._acc_k, r["site"].astype(int), r["accepted"].astype(int))
+                    self._steps += int(r["steps"])
+                    out.append((ch.id, ch.sweep, ch.logdensity, self._values(ch.position)))
+                self._rounds += 1
+                self._in_flight = False
+                self._dirty = True
+                self._notices.append(("sweeps", {"round": self._rounds, "results": out}))
+                self._apply_pending()
+                self._cond.notify_all()
+            return True
+
+    def run_sweeps(self, n: int) -> int:
+        """Run n rounds synchronously (rounds with no running chain do nothing); returns rounds run."""
+        done = 0
+        for _ in range(int(n)):
+            done += self._round()
+            self._deliver()
+            self._maybe_save()
+        return done
+
+    def start(self) -> None:
+        """Run rounds in a background thread until `stop`."""
+        with self._lock:
+            if self._closed:
+                raise GalileoError("the controller is closed")
+            if self._thread is not None and self._thread.is_alive():
+                return
+            self._error = None
+            self._stop_evt.clear()
+            self._start_pool()
+            self._thread = threading.Thread(target=self._loop, name="galileo-controller", daemon=True)
+            self._thread.start()
+
+    def _loop(self) -> None:
+        try:
+            while not self._stop_evt.is_set():
+                self._deliver()
+                if not self._round():
+                    with self._cond:
+                        if not self._stop_evt.is_set() and not self._pending:
+                            self._cond.wait(0.2)
+                self._deliver()
+                self._maybe_save()
+        except Exception as e:  # noqa: BLE001 - reported, not raised, from the background
+            msg = " ".join(str(e).split())
+            log.error("inference stopped: %s", msg)
+            with self._lock:
+                self._error = msg
+                self._notices.append(("error", {"message": msg}))
+            self._deliver()
+
+    def stop(self) -> None:
+        """Stop the background thread (the round in flight finishes) and save the session."""
+        t = self._thread
+        if t is not None and t is threading.current_thread():   # from a listener: just ask
+            self._stop_evt.set()
+            return
+        if t is not None:
+            self._stop_evt.set()
+            with self._cond:
+                self._cond.notify_all()
+            t.join()
+            self._thread = None
+        self._deliver()
+        self.save()
+
+    def close(self) -> None:
+        """Stop, save, and shut the worker processes down."""
+        if self._closed:
+            return
+        self.stop()
+        with self._round_lock:
+            self._closed = True
+            if self._pool is not None:
+                self._pool.shutdown(wait=True, cancel_futures=True)
+                self._pool = None
+
+    def __enter__(self) -> "Controller":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def running(self) -> bool:
+        t = self._thread
+        return t is not None and t.is_alive()
+
+    # -- listeners ------------------------------------------------------------------------------------------
+    def add_listener(self, fn: Listener) -> None:
+        with self._lock:
+            self._listeners.append(fn)
+
+    def remove_listener(self, fn: Listener) -> None:
+        with self._lock:
+            if fn in self._listeners:
+                self._listeners.remove(fn)
+
+    def _deliver(self) -> None:
+        with self._deliver_lock:
+            while True:
+                with self._lock:
+                    if not self._notices:
+                        return
+                    kind, payload = self._notices.popleft()
+                    listeners = list(self._listeners)
+                for fn in listeners:
+                    try:
+                        fn(kind, payload)
+                    except Exception:  # noqa: BLE001 - a listener must not stop the chains
+                        log.exception("controller listener %r failed on %s", fn, kind)
+
+    # -- steering ---------------------------------------------------------------------------------------------
+    def _steer(self, apply: Callable[[], None]) -> None:
+        """Apply now, or right after the round in flight (which keeps the old settings)."""
+        with self._lock:
+            if self._in_flight:
+                self._pending.append(apply)
+            else:
+                apply()
+            self._cond.notify_all()
+        if not self.running:
+            self._deliver()
+
+    def _apply_pending(self) -> None:
+        pending, self._pending = self._pending, []
+        for fn in pending:
+            fn()
+
+    def _event(self, kind: str, detail: dict) -> dict:
+        ev = {"sweep": self._rounds, "time": time.time(), "kind": kind, "detail": detail,
+              "chain_sweeps": {str(c): ch.sweep for c, ch in sorted(self._chains.items()) if not ch.removed}}
+        self._events.append(ev)
+        self._dirty = True
+        self._notices.append(("event", copy.deepcopy(ev)))
+        return ev
+
+    def set_bounds(self, name: str, lo: float, hi: float) -> None:
+        """Uniform prior bounds of one latent; chains outside move to the nearest point inside."""
+        lo, hi = _check_bound(name, lo, hi, names=self.names)
+        j = self.names.index(name)
+
+        def apply():
+            old = self._settings.bounds[name]
+            if old == (lo, hi):
+                return
+            self._settings.bounds[name] = (lo, hi)
+            moved = {}
+            for c, ch in sorted(self._chains.items()):
+                if ch.removed:
+                    continue
+                x = float(ch.position[j])
+                y = min(max(x, lo), hi)
+                if y != x:
+                    ch.position = ch.position.copy()
+                    ch.position[j] = y
+                    ch.logdensity = None
+                    moved[str(c)] = {"from": x, "to": y}
+            self._event("bounds", {"name": name, "lo": lo, "hi": hi, "old": [old[0], old[1]], "moved": moved})
+        self._steer(apply)
+
+    def set_sigma(self, sigma_mps: float) -> None:
+        """Likelihood noise (SD, m/s); chains' logdensities are recomputed before their next proposals."""
+        sigma = _check_sigma(sigma_mps)
+
+        def apply():
+            old = self._settings.sigma_mps
+            if old == sigma:
+                return
+            self._settings.sigma_mps = sigma
+            for ch in self._chains.values():
+                if not ch.removed:
+                    ch.logdensity = None
+            self._event("sigma", {"sigma_mps": sigma, "old": old})
+        self._steer(apply)
+
+    def set_widths(self, narrow: float, broad: float, broad_every: int) -> None:
+        """Proposal half-widths: U(-narrow, narrow), U(-broad, broad) every broad_every-th sweep (0: never)."""
+        n, b, e = _check_widths(narrow, broad, broad_every)
+
+        def apply():
+            s = self._settings
+            old = {"narrow": s.narrow, "broad": s.broad, "broad_every": s.broad_every}
+            if old == {"narrow": n, "broad": b, "broad_every": e}:
+                return
+            s.narrow, s.broad, s.broad_every = n, b, e
+            self._event("widths", {"narrow": n, "broad": b, "broad_every": e, "old": old})
+        self._steer(apply)
+
+    def _check_active(self, chain: int) -> None:
+        with self._lock:
+            ch = self._chains.get(chain)
+            if ch is None:
+                raise ValueError(f"no chain {chain!r}; chains are {self.chain_ids()}")
+            if ch.removed:
+                raise ValueError(f"chain {chain} was removed")
+
+    def _set_paused(self, chain: int | None, paused: bool) -> None:
+        if chain is not None:
+            self._check_active(chain)
+
+        def apply():
+            ids = [chain] if chain is not None else sorted(self._chains)
+            changed = [c for c in ids if not self._chains[c].removed and self._chains[c].paused != paused]
+            for c in changed:
+                self._chains[c].paused = paused
+            if changed:
+                self._event("pause" if paused else "resume", {"chains": changed})
+        self._steer(apply)
+
+    def pause(self, chain: int | None = None) -> None:
+        """Pause one chain (or all): it keeps its state and samples but stops sweeping."""
+        self._set_paused(chain, True)
+
+    def resume(self, chain: int | None = None) -> None:
+        self._set_paused(chain, False)
+
+    def add_chains(self, n: int = 1) -> list[int]:
+        """New chains, started like the batch runner's chains with those indices (under the
+        bounds in force); returns their ids."""
+        if int(n) != n or n < 1:
+            raise ValueError(f"add_chains needs n >= 1, got {n!r}")
+        with self._lock:
+            ids = list(range(self._next_id, self._next_id + int(n)))
+            self._next_id += int(n)
+
+        def apply():
+            self._create_chains(ids)
+            self._event("add_chains", {"chains": ids, "starts": {str(c): self._chains[c].start.tolist()
+                                                                  for c in ids}})
+        self._steer(apply)
+        return ids
+
+    def _create_chains(self, ids: list[int]) -> None:
+        if not ids:
+            return
+        bounds = self._bounds_array()
+        starts = initial_positions(bounds, max(ids) + 1, self.seed)
+        for c in ids:
+            self._chains[c] = _Chain(c, starts[c], chain_rng(self.seed, c).bit_generator.state, len(self.names))
+        self._next_id = max(self._next_id, max(ids) + 1)
+
+    def remove_chain(self, chain: int) -> None:
+        """Stop a chain for good; its samples stay (and count for the MAP)."""
+        self._check_active(chain)
+
+        def apply():
+            ch = self._chains[chain]
+            if not ch.removed:
+                ch.removed = True
+                self._event("remove_chain", {"chains": [chain]})
+        self._steer(apply)
+
+    def reset_chain(self, chain: int, to: str = "map", sample: tuple[int, int] | None = None) -> None:
+        """Move a chain to the MAP (to="map") or to a recorded sample (to="sample", sample=(chain, index))."""
+        self._check_active(chain)
+        if to == "map":
+            best = self.map()
+            if best is None:
+                raise ValueError("no samples yet: there is no MAP to reset to")
+            src = (best[0], best[1])
+        elif to == "sample":
+            if sample is None or len(sample) != 2:
+                raise ValueError("reset_chain(to='sample') needs sample=(chain, index)")
+            src = (int(sample[0]), int(sample[1]))
+        else:
+            raise ValueError(f"reset_chain: to must be 'map' or 'sample', got {to!r}")
+        values = self.sample(*src)
+        self._move(chain, values, "reset_chain", {"to": to, "sample": list(src)}, clamp=True)
+
+    def set_chain(self, chain: int, values: dict[str, float]) -> None:
+        """Set (some of) a chain's latents by hand; they must lie inside the prior bounds."""
+        self._check_active(chain)
+        if not isinstance(values, dict) or not values:
+            raise ValueError("set_chain needs a dict of latent values")
+        vals = {}
+        with self._lock:
+            for k, v in values.items():
+                if k not in self.names:
+                    raise ValueError(f"unknown latent {k!r}; expected one of {', '.join(self.names)}")
+                x = _number(v, k)
+                lo, hi = self._settings.bounds[k]
+                if not lo <= x <= hi:
+                    raise ValueError(f"{k}={x:g} is outside its prior bounds [{lo:g}, {hi:g}]")
+                vals[k] = x
+        self._move(chain, vals, "set_chain", {}, clamp=True)
+
+    def _move(self, chain: int, values: dict[str, float], kind: str, detail: dict, clamp: bool) -> None:
+        def apply():
+            ch = self._chains[chain]
+            if ch.removed:
+                return
+            pos = ch.position.copy()
+            clamped = {}
+            for k, x in values.items():
+                j = self.names.index(k)
+                lo, hi = self._settings.bounds[k]
+                y = min(max(float(x), lo), hi) if clamp else float(x)
+                if y != x:
+                    clamped[k] = {"from": float(x), "to": y}
+                pos[j] = y
+            ch.position = pos
+            ch.logdensity = None
+            self._event(kind, {"chain": chain, **detail, "values": self._values(pos), "clamped": clamped})
+        self._steer(apply)
+
+    # -- queries ------------------------------------------------------------------------------------------------
+    @property
+    def settings(self) -> Settings:
+        with self._lock:
+            return self._settings.copy()
+
+    @property
+    def likelihood_scene(self) -> Scene:
+        """The scene the likelihood simulates (shapes and offset from tracking)."""
+        if self._likelihood_scene is None:
+            self._likelihood_scene = scene_for_inference(self.scene, self.tracks)
+        return self._likelihood_scene
+
+    @property
+    def events(self) -> list[dict]:
+        with self._lock:
+            return copy.deepcopy(self._events)
+
+    def chain_ids(self) -> list[int]:
+        """Active (not removed) chains."""
+        with self._lock:
+            return [c for c, ch in sorted(self._chains.items()) if not ch.removed]
+
+    def all_chain_ids(self) -> list[int]:
+        """Every chain, removed ones included."""
+        with self._lock:
+            return sorted(self._chains)
+
+    def _get(self, chain: int) -> _Chain | None:
+        ch = self._chains.get(chain)
+        if ch is None and not (isinstance(chain, (int, np.integer)) and 0 <= chain < self._next_id):
+            raise ValueError(f"no chain {chain!r}")
+        return ch   # None: added, created after the round in flight
+
+    def samples(self, chain: int) -> np.ndarray:
+        """(S, D): the chain's state after each of its sweeps."""
+        with self._lock:
+            ch = self._get(chain)
+            return ch.samples.get() if ch else np.empty((0, len(self.names)))
+
+    def logliks(self, chain: int) -> np.ndarray:
+        """(S,): the log-likelihood of each sample (under the sigma in force when it was drawn)."""
+        with self._lock:
+            ch = self._get(chain)
+            return ch.logliks.get() if ch else np.empty(0)
+
+    def proposals(self, chain: int) -> dict[str, np.ndarray]:
+        """The chain's proposals in order (D per sweep): site, proposal (P, D), proposal_loglik
+        (a bound below the threshold if early_stop), accepted, early_stop, width."""
+        with self._lock:
+            ch = self._get(chain)
+            if ch is None:
+                return {k: np.empty((0, len(self.names)) if w else 0, t) for k, (t, w) in _PROPOSAL_FIELDS.items()}
+            return {k: b.get() for k, b in ch.proposals.items()}
+
+    def position(self, chain: int) -> dict[str, float]:
+        """The chain's current state (where its next sweep starts)."""
+        with self._lock:
+            ch = self._get(chain)
+            if ch is None:
+                raise ValueError(f"chain {chain} starts after the round in flight")
+            return self._values(ch.position)
+
+    def sample(self, chain: int, index: int) -> dict[str, float]:
+        with self._lock:
+            ch = self._get(chain)
+            n = len(ch.samples) if ch else 0
+            if not -n <= index < n:
+                raise IndexError(f"chain {chain} has {n} samples, no index {index}")
+            return self._values(ch.samples.a[index % n])
+
+    def map(self) -> tuple[int, int, dict[str, float], float] | None:
+        """(chain, index, values, loglik) of the best sample of all chains (removed ones too)."""
+        with self._lock:
+            best = None
+            for c, ch in sorted(self._chains.items()):
+                if ch.best is not None and (best is None or ch.best[1] > best[2]):
+                    best = (c, ch.best[0], ch.best[1])
+            if best is None:
+                return None
+            c, i, ll = best
+            return c, i, self._values(self._chains[c].samples.a[i]), ll
+
+    def status(self) -> dict:
+        """{"running" (background thread), "rounds" (global sweep count), "sweeps" (chain sweeps,
+        all chains), "proposals", "accepted", "physics_steps", "chains": {id: {"sweeps", "state"
+        ("running" | "paused"), "running", "paused", "loglik" (last sample's), "values" (current
+        position)}} for active chains, "removed": [ids], "acceptance": {latent: rate | None},
+        "r_hat": {latent: R-hat | None} (active chains with >= 4 samples, their second halves
+        cut to the shortest; None below 2 such chains or for a constant latent), "settings",
+        "map": {"chain", "index", "values", "loglik"} | None, "error": message | None}."""
+        with self._lock:
+            chains = {}
+            for c, ch in sorted(self._chains.items()):
+                if ch.removed:
+                    continue
+                last = float(ch.logliks.a[ch.logliks.n - 1]) if ch.logliks.n else None
+                chains[c] = {"sweeps": ch.sweep, "state": "paused" if ch.paused else "running",
+                             "running": not ch.paused, "paused": ch.paused, "loglik": last,
+                             "values": self._values(ch.position)}
+            acc = {n: (float(self._acc_k[j] / self._acc_n[j]) if self._acc_n[j] else None)
+                   for j, n in enumerate(self.names)}
+            kept = [ch.samples.a[int(ch.samples.n * BURN_IN_FRACTION):ch.samples.n]
+                    for _, ch in sorted(self._chains.items()) if not ch.removed and ch.samples.n >= 4]
+            best = self.map()
+            out = {"running": self.running, "rounds": self._rounds,
+                   "sweeps": int(sum(ch.sweep for ch in self._chains.values())),
+                   "proposals": int(self._acc_n.sum()), "accepted": int(self._acc_k.sum()),
+                   "physics_steps": self._steps, "chains": chains,
+                   "removed": [c for c, ch in sorted(self._chains.items()) if ch.removed],
+                   "acceptance": acc, "settings": self._settings.to_json(),
+                   "map": None if best is None else {"chain": best[0], "index": best[1], "values": best[2],
+                                                     "loglik": best[3]},
+                   "error": self._error}
+        out["r_hat"] = _r_hat(kept, self.names)
+        return out
+
+    # -- helpers -----------------------------------------------------------------------------------------------
+    def _values(self, position) -> dict[str, float]:
+        return {n: float(v) for n, v in zip(self.names, position)}
+
+    def _bounds_array(self) -> np.ndarray:
+        return np.array([self._settings.bounds[n] for n in self.names], float)
+
+    # -- sessions ------------------------------------------------------------------------------------------------
+    def _maybe_save(self) -> None:
+        if (self.session_dir is not None and self._dirty
+                and time.monotonic() - self._last_save >= self.save_every_s):
+            self.save()
+
+    def save(self) -> None:
+        """Write the session now (no-op without a session_dir)."""
+        if self.session_dir is None:
+            return
+        with self._save_lock:
+            with self._lock:
+                record = {"names": np.array(self.names), "chain_ids": np.array(sorted(self._chains), np.int64)}
+                for c, ch in sorted(self._chains.items()):
+                    record[f"c{c}_start"] = ch.start.copy()
+                    record[f"c{c}_samples"] = ch.samples.get()
+                    record[f"c{c}_logliks"] = ch.logliks.get()
+                    for k, b in ch.proposals.items():
+                        record[f"c{c}_{k}"] = b.get()
+                events = copy.deepcopy(self._events)
+                settings = self._settings.to_json()
+                chains = {"version": sess.SESSION_VERSION, "names": list(self.names), "seed": self.seed,
+                          "rounds": self._rounds, "next_id": self._next_id, "physics_steps": self._steps,
+                          "n_events": len(self._events), "settings": settings,
+                          "chains": [copy.deepcopy(ch.to_json()) for _, ch in sorted(self._chains.items())]}
+                self._dirty = False
+            sess.write_state(self.session_dir, settings=settings, events=events, chains=chains, record=record)
+            self._last_save = time.monotonic()
+
+    @classmethod
+    def load(cls, session_dir: str | Path, *, workers: int | None = None,
+             save_every_s: float = 1.0) -> "Controller":
+        """Restore a saved session exactly; its chains go on from where they stopped."""
+        folder = sess.check_folder(session_dir)
+        path = folder / sess.SCENE_FILE
+        scene_json = sess.read_json_file(folder, sess.SCENE_FILE)
+        with sess.reading(path):
+            scene = scene_from_json(scene_json)
+        path = folder / sess.TRACKS_FILE
+        tracks_json = sess.read_json_file(folder, sess.TRACKS_FILE)
+        with sess.reading(path):
+            tracks = Tracks.from_json(tracks_json)
+            names = VelocityLikelihood(scene, tracks).names
+        path = folder / sess.SETTINGS_FILE
+        raw = sess.read_json_file(folder, sess.SETTINGS_FILE)
+        with sess.reading(path):
+            Settings.from_json(raw, names)
+        path = folder / sess.EVENTS_FILE
+        raw_events = sess.read_json_file(folder, sess.EVENTS_FILE)
+        with sess.reading(path):
+            events = raw_events["events"]
+            keys = {"sweep", "time", "kind", "detail"}
+            if not isinstance(events, list) or not all(isinstance(e, dict) and keys <= set(e) for e in events):
+                raise ValueError("expected a list of events {sweep, time, kind, detail}")
+        path = folder / sess.CHAINS_FILE
+        doc = sess.read_json_file(folder, sess.CHAINS_FILE)
+        with sess.reading(path):
+            if list(doc["names"]) != list(names):
+                raise ValueError(f"latents {doc['names']} differ from the scene's {list(names)}")
+            settings = Settings.from_json(doc["settings"], names)
+            n_events = int(doc["n_events"])
+            if not 0 <= n_events <= len(events):
+                raise ValueError(f"{n_events} events committed but events.json holds {len(events)}")
+            chain_docs = list(doc["chains"])
+            seed, rounds = int(doc["seed"]), int(doc["rounds"])
+            next_id, steps = int(doc["next_id"]), int(doc["physics_steps"])
+        record = sess.read_record(folder)
+        self = cls.__new__(cls)
+        self._setup(scene, tracks, names, seed, workers, settings, folder, save_every_s)
+        self._rounds, self._next_id, self._steps = rounds, next_id, steps
+        self._events = events[:n_events]
+        dim = len(names)
+        for d in chain_docs:
+            with sess.reading(folder / sess.CHAINS_FILE):
+                c = int(d["id"])
+                if not 0 <= c < next_id or c in self._chains:
+                    raise ValueError(f"bad chain id {c}")
+                rng_state = d["rng"]
+                bit_gen = getattr(np.random, rng_state["bit_generator"])()
+                bit_gen.state = rng_state
+                ch = _Chain(c, _vector(d["start"], dim), bit_gen.state, dim)
+                ch.position = _vector(d["position"], dim)
+                ch.logdensity = None if d["logdensity"] is None else float(d["logdensity"])
+                ch.sweep, ch.paused, ch.removed = int(d["sweep"]), bool(d["paused"]), bool(d["removed"])
+                n_s, n_p = int(d["n_samples"]), int(d["n_proposals"])
+                if n_s != ch.sweep:
+                    raise ValueError(f"chain {c}: {n_s} samples after {ch.sweep} sweeps")
+            with sess.reading(folder / sess.RECORD_FILE):
+                samples = record[f"c{c}_samples"]
+                logliks = record[f"c{c}_logliks"]
+                if samples.ndim != 2 or samples.shape[1] != dim or len(samples) < n_s or len(logliks) < n_s:
+                    raise ValueError(f"chain {c}: fewer than the {n_s} committed samples")
+                ch.samples = _Buf(float, dim, samples[:n_s])
+                ch.logliks = _Buf(float, None, logliks[:n_s])
+                for k, (t, wide) in _PROPOSAL_FIELDS.items():
+                    a = record[f"c{c}_{k}"]
+                    if len(a) < n_p:
+                        raise ValueError(f"chain {c}: fewer than the {n_p} committed proposals")
+                    ch.proposals[k] = _Buf(t, dim if wide else None, a[:n_p])
+                site = ch.proposals["site"].get().astype(int)
+                if site.size and (site.min() < 0 or site.max() >= dim):
+                    raise ValueError(f"chain {c}: proposal sites outside 0..{dim - 1}")
+                np.add.at(self._acc_n, site, 1)
+                np.add.at(self._acc_k, site, ch.proposals["accepted"].get().astype(int))
+                ch.note_best()
+            self._chains[c] = ch
+        self._dirty = False
+        self._last_save = time.monotonic()
+        self._start_pool()
+        return self
+
+
+def _vector(x, dim: int) -> np.ndarray:
+    v = np.asarray(x, float)
+    if v.shape != (dim,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"expected {dim} finite numbers, got {x!r}")
+    return v
+
+
+def _r_hat(kept: list[np.ndarray], names) -> dict[str, float | None]:
+    """Split R-hat per latent over the chains' second halves (each cut to the shortest)."""
+    out = {n: None for n in names}
+    if len(kept) < 2:
+        return out
+    length = min(len(k) for k in kept)
+    if length < 2:
+        return out
+    from arviz_stats.base import array_stats
+
+    x = np.stack([k[len(k) - length:] for k in kept])   # (chains, draws, D)
+    for j, n in enumerate(names):
+        xj = x[..., j]
+        if np.ptp(xj) > 0:
+            v = float(array_stats.rhat(xj, chain_axis=0, draw_axis=1))
+            out[n] = v if math.isfinite(v) else None
+    return out

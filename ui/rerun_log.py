@@ -1,0 +1,441 @@
+"""Rerun logging for a Galileo session: one module, one recording, stable entity paths.
+
+Entity layout (timelines in brackets):
+
+    video                      AssetVideo (static) + VideoFrameReference [frame]
+                               (fallback: decoded frames as JPEG images [frame], subsampled)
+    video/tracks/<object>      Points2D: KLT features, else the projected centre [frame]
+    video/tracks/<object>/center   Points2D: projected centre, labelled [frame]
+    video/tracks/<object>/path     LineStrips2D: the centre's whole path (static)
+    observed/<object>          LineStrips3D (static) + Points3D [frame]: tracked positions, metres
+    chains/<c>/loglik          Scalars [sweep]
+    chains/<c>/<latent>        Scalars [sweep]   (latents: m1_kg, k1, m2_kg, k2)
+    posterior/<latent>         BarChart histogram (static, replaced on each call)
+    events                     TextLog [sweep]   (prior edits etc.)
+    sim/<object>               LineStrips3D (static) + Points3D [frame]: a simulated trajectory
+
+Every method is a no-op in mode "off". The logger uses its own `rr.RecordingStream`,
+never the global one, and sends a default blueprint (see `_blueprint`) that is extended
+(re-sent once) when chains or latents it did not know about show up.
+
+Time: a stream's time cursor is per thread and sticky, so every method resets it and
+sets only its own timeline before logging (a sweep row never inherits a stale frame).
+"""
+from __future__ import annotations
+
+import logging
+import socket
+import threading
+import urllib.parse
+import uuid
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+log = logging.getLogger(__name__)
+
+MODES = ("off", "save", "web", "connect")
+RRD_NAME = "session.rrd"
+DEFAULT_CONNECT_URL = "rerun+http://127.0.0.1:9876/proxy"
+
+# H.264 is what PyAV writes for us; the others are what the rerun viewer also decodes.
+VIDEO_CODECS = {"h264", "hevc", "h265", "av1", "vp9"}
+# fallback (decoded frames as images): at most this many frames, JPEG quality
+FALLBACK_MAX_FRAMES = 120
+FALLBACK_JPEG_QUALITY = 80
+
+ROLE_COLORS = {"ramp": (255, 80, 40), "target": (40, 160, 255)}
+OTHER_COLOR = (255, 220, 0)
+SIM_COLORS = [(230, 60, 60), (60, 120, 230), (60, 180, 90), (200, 120, 220)]
+OBSERVED_COLOR = (150, 150, 150)
+
+# web viewer HTTP servers started by this process (rerun offers no way to stop one)
+_web_ports: set[int] = set()
+_web_lock = threading.Lock()
+
+
+def _part(name: str) -> str:
+    """One entity-path part, escaped when it needs to be (object names come from scene files)."""
+    return rr.escape_entity_path_part(str(name))
+
+
+def _finite_runs(points: np.ndarray) -> list[np.ndarray]:
+    """Split a polyline (N, D) at non-finite rows; runs of at least two points."""
+    ok = np.all(np.isfinite(points), axis=1)
+    runs, start = [], None
+    for i, good in enumerate(np.r_[ok, False]):
+        if good and start is None:
+            start = i
+        elif not good and start is not None:
+            if i - start >= 2:
+                runs.append(points[start:i])
+            start = None
+    return runs
+
+
+def _check_reachable(url: str, timeout_s: float = 2.0) -> None:
+    """Fail fast when nothing listens at a rerun gRPC url (rerun itself would block 5 s on
+    the first log call, then raise on every flush)."""
+    parts = urllib.parse.urlsplit(url.replace("rerun+http", "http", 1).replace("rerun+https", "https", 1)
+                                  .replace("rerun://", "https://", 1))
+    port = parts.port or (443 if parts.scheme == "https" else 80)
+    try:
+        socket.create_connection((parts.hostname or "127.0.0.1", port), timeout=timeout_s).close()
+    except OSError as e:
+        raise RuntimeError(f"no rerun viewer or server reachable at {url}: {e}") from None
+
+
+def _check_port_free(host: str, port: int) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError as e:
+            raise RuntimeError(f"cannot serve rerun's gRPC on {host}:{port}: {e}") from None
+
+
+class RerunLogger:
+    """Logs a session to rerun. `mode`:
+
+    - "off": every method is a no-op, nothing is written;
+    - "save": write `session_dir/session.rrd`;
+    - "web": save too, and host a gRPC server (bound to `host`) plus rerun's web viewer
+      (`web_port`); `web_url` is the page that opens this recording;
+    - "connect": stream to a running viewer/server at `connect_url` (and save too when a
+      `session_dir` is given).
+
+    `latents` / `n_chains` (optional) let the first blueprint hold every view at once;
+    without them the blueprint is re-sent once when the chains and latents are first seen.
+    """
+
+    def __init__(self, mode: str = "save", *, session_dir: Path | str | None = None, app_id: str = "galileo",
+                 connect_url: str | None = None, web_port: int = 9090, grpc_port: int = 9876,
+                 host: str = "127.0.0.1", recording_id: str | None = None,
+                 latents: Sequence[str] | None = None, n_chains: int | None = None):
+        if mode not in MODES:
+            raise ValueError(f"rerun mode must be one of {', '.join(MODES)}, not {mode!r}")
+        self.mode = mode
+        self.web_url: str | None = None
+        self.grpc_url: str | None = None
+        self.rrd_path: Path | None = None
+        self._lock = threading.Lock()
+        self._chains: list[int] = []
+        self._latents: list[str] = list(latents or [])
+        self._dirty_sweep: int | None = None     # sweep in which new chains/latents were first seen
+        self._named: set[str] = set()             # series given a legend name
+        self._closed = False
+        self.stream: rr.RecordingStream | None = None
+        if mode == "off":
+            return
+        if n_chains:
+            self._chains = list(range(int(n_chains)))
+        if mode in ("save", "web") and session_dir is None:
+            raise ValueError(f"rerun mode {mode!r} needs a session_dir to write {RRD_NAME} into")
+        if mode == "web":
+            _check_port_free(host, grpc_port)
+        elif mode == "connect":
+            self.grpc_url = connect_url or DEFAULT_CONNECT_URL
+            _check_reachable(self.grpc_url)
+
+        self.stream = rr.RecordingStream(app_id, recording_id=recording_id or uuid.uuid4().hex)
+        blueprint = self._blueprint()
+        sinks: list = []
+        if session_dir is not None:
+            session_dir = Path(session_dir)
+            session_dir.mkdir(parents=True, exist_ok=True)
+            self.rrd_path = session_dir / RRD_NAME
+            sinks.append(rr.FileSink(self.rrd_path))
+        if mode == "web":
+            server = rr.GrpcServerSink(host, grpc_port)   # rr.serve_grpc, but bindable and teed with the file
+            sinks.append(server)
+            self.grpc_url = server.uri
+        elif mode == "connect":
+            sinks.append(rr.GrpcSink(self.grpc_url))
+        self.stream.set_sinks(*sinks, default_blueprint=blueprint)
+        if session_dir is not None:
+            self.stream.send_recording_name(Path(session_dir).name)
+        if mode == "web":
+            with _web_lock:
+                if web_port not in _web_ports:
+                    # the web viewer's HTTP server: rerun binds it on all interfaces (no host
+                    # option in 0.41) and it lives as long as the process
+                    try:
+                        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=self.grpc_url)
+                    except RuntimeError as e:
+                        self.stream.disconnect()
+                        self.stream = None
+                        raise RuntimeError(f"cannot serve rerun's web viewer on port {web_port}: {e}") from None
+                    _web_ports.add(web_port)
+            page_host = "127.0.0.1" if host in ("0.0.0.0", "") else host
+            self.web_url = (f"http://{page_host}:{web_port}/?url="
+                            f"{urllib.parse.quote(self.grpc_url, safe='')}")
+
+    # -- state -----------------------------------------------------------------------
+
+    @property
+    def enabled(self) -> bool:
+        return self.stream is not None and not self._closed
+
+    def _at(self, timeline: str | None = None, value: int | None = None) -> None:
+        self.stream.reset_time()
+        if timeline is not None:
+            self.stream.set_time(timeline, sequence=int(value))
+
+    # -- blueprint -------------------------------------------------------------------
+
+    def _blueprint(self) -> rrb.Blueprint:
+        chains = self._chains
+        latents = self._latents
+
+        def series(name: str, leaf: str) -> rrb.TimeSeriesView:
+            contents = [f"/chains/{c}/{leaf}" for c in chains] or [f"/chains/0/{leaf}"]
+            return rrb.TimeSeriesView(name=name, origin="/chains", contents=contents)
+
+        traces: list = [series("log-likelihood", "loglik")]
+        if latents:
+            traces.append(rrb.Grid(*[series(n, _part(n)) for n in latents], name="latents"))
+            posterior = rrb.Grid(*[rrb.BarChartView(name=f"posterior {n}", origin=f"/posterior/{_part(n)}")
+                                   for n in latents], name="posterior")
+        else:
+            posterior = rrb.BarChartView(name="posterior", origin="/posterior")
+        traces.append(posterior)
+        left = rrb.Vertical(
+            rrb.Spatial2DView(name="video + tracks", origin="/video"),
+            rrb.Spatial3DView(name="simulation", origin="/", contents=["/sim/**", "/observed/**"]),
+            rrb.TextLogView(name="events", origin="/events"),
+            row_shares=[3, 3, 1],
+        )
+        right = rrb.Vertical(*traces, row_shares=[2, 3, 3][: len(traces)])
+        return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[2, 3]),
+                             rrb.TimePanel(timeline="sweep"), collapse_panels=False)
+
+    def _resend_blueprint(self) -> None:
+        self._dirty_sweep = None
+        self.stream.send_blueprint(self._blueprint(), make_active=True, make_default=True)
+
+    # -- inference -------------------------------------------------------------------
+
+    def log_sweep(self, chain: int, sweep: int, loglik: float, values: dict[str, float]) -> None:
+        """One chain's state after a sweep: chains/<chain>/loglik and chains/<chain>/<latent>."""
+        if not self.enabled:
+            return
+        chain, sweep = int(chain), int(sweep)
+        with self._lock:
+            if self._dirty_sweep is not None and sweep > self._dirty_sweep:
+                self._resend_blueprint()
+            new_chain = chain not in self._chains
+            new_latents = [n for n in values if n not in self._latents]
+            if new_chain or new_latents:
+                if new_chain:
+                    self._chains.append(chain)
+                    self._chains.sort()
+                self._latents.extend(new_latents)
+                if self._dirty_sweep is None:
+                    self._dirty_sweep = sweep
+        base = f"chains/{chain}"
+        paths = [(f"{base}/loglik", loglik), *((f"{base}/{_part(n)}", v) for n, v in values.items())]
+        for path, _ in paths:
+            if path not in self._named:          # legend name, once per series
+                self._named.add(path)
+                self.stream.log(path, rr.SeriesLines(names=f"chain {chain}"), static=True)
+        self._at("sweep", sweep)
+        for path, v in paths:
+            self.stream.log(path, rr.Scalars(float(v)))
+
+    def log_posterior(self, names: Sequence[str], samples: np.ndarray,
+                      bounds: dict[str, tuple[float, float]], bins: int = 30) -> None:
+        """Histograms of samples (..., len(names)) at posterior/<latent>, over the prior's bounds.
+
+        Static: each call replaces the previous histogram (visible on every timeline)."""
+        if not self.enabled:
+            return
+        names = list(names)
+        samples = np.asarray(samples, float).reshape(-1, len(names))
+        with self._lock:
+            new = [n for n in names if n not in self._latents]
+            if new:
+                self._latents.extend(new)
+                self._resend_blueprint()
+        for j, name in enumerate(names):
+            col = samples[:, j]
+            col = col[np.isfinite(col)]
+            lo, hi = bounds.get(name, (None, None)) if bounds else (None, None)
+            if lo is None or hi is None:
+                lo, hi = (float(col.min()), float(col.max())) if len(col) else (0.0, 1.0)
+            if not hi > lo:
+                hi = lo + 1e-9
+            counts, edges = np.histogram(col, bins=int(bins), range=(float(lo), float(hi)))
+            self.stream.log(f"posterior/{_part(name)}",
+                            rr.BarChart(counts.astype(np.float64), abscissa=0.5 * (edges[1:] + edges[:-1]),
+                                        widths=np.diff(edges).astype(np.float32)),
+                            static=True)
+
+    def log_event(self, sweep: int, text: str, level: str = "INFO") -> None:
+        """A text event (prior edit, restart, ...) on the sweep timeline at `events`."""
+        if not self.enabled:
+            return
+        self._at("sweep", sweep)
+        self.stream.log("events", rr.TextLog(str(text), level=level))
+
+    # -- video and tracks ------------------------------------------------------------
+
+    def log_video(self, video_path: str | Path, tracks=None, fps: float | None = None) -> None:
+        """The video at `video` (H.264 asset + a frame reference per frame on timeline `frame`)
+        and the tracks over it (video/tracks/<object>) and in 3-D (observed/<object>).
+        Frames are indexed by number (frame i = the i-th decoded frame), so `fps` is
+        informational only."""
+        if not self.enabled:
+            return
+        video_path = Path(video_path)
+        n_track_frames = tracks.n_frames if tracks is not None else None
+        try:
+            n_frames = self._log_video_asset(video_path)
+        except Exception as e:     # unreadable by rerun, or a codec its viewer does not play
+            log.info("rerun: %s not logged as a video asset (%s); logging decoded frames", video_path, e)
+            n_frames = self._log_video_images(video_path, n_track_frames)
+        if tracks is not None:
+            self._log_tracks(tracks, n_frames)
+
+    def _log_video_asset(self, video_path: Path) -> int:
+        import av
+        with av.open(str(video_path)) as box:
+            codec = box.streams.video[0].codec_context.name
+        if codec not in VIDEO_CODECS:
+            raise ValueError(f"codec {codec} is not played by rerun")
+        asset = rr.AssetVideo(path=video_path)
+        ts_ns = np.asarray(asset.read_frame_timestamps_nanos(), np.int64)
+        if len(ts_ns) == 0:
+            raise ValueError("no frames")
+        self._at()
+        self.stream.log("video", asset, static=True)
+        self.stream.send_columns("video", indexes=[rr.TimeColumn("frame", sequence=np.arange(len(ts_ns)))],
+                                 columns=rr.VideoFrameReference.columns_nanos(ts_ns))
+        return len(ts_ns)
+
+    def _log_video_images(self, video_path: Path, n_hint: int | None) -> int:
+        from galileo.video import read_frames
+        n = 0
+        step = None
+        if n_hint:
+            step = max(1, -(-n_hint // FALLBACK_MAX_FRAMES))
+        for i, frame in enumerate(read_frames(video_path)):
+            n = i + 1
+            if step is None:
+                step = 1 if i < FALLBACK_MAX_FRAMES else 2   # unknown length: thin out late frames
+            if i % step:
+                continue
+            self._at("frame", i)
+            self.stream.log("video", rr.Image(frame).compress(jpeg_quality=FALLBACK_JPEG_QUALITY))
+        return n
+
+    def _log_tracks(self, tracks, n_video_frames: int | None) -> None:
+        n = tracks.n_frames if n_video_frames is None else min(tracks.n_frames, n_video_frames)
+        if n == 0:
+            return
+        frames = rr.TimeColumn("frame", sequence=np.arange(n))
+        self._at()
+        for o in tracks.objects:
+            color = ROLE_COLORS.get(o.role, OTHER_COLOR)
+            base = f"video/tracks/{_part(o.name)}"
+            centre = None
+            if o.center_px is not None:
+                centre = np.asarray(o.center_px, float).reshape(-1, 2)[:n]
+            feats = list(o.features_px[:n]) if o.features_px else []
+            if feats:
+                per_frame = [np.asarray(f, float).reshape(-1, 2) if f is not None else np.zeros((0, 2))
+                             for f in feats] + [np.zeros((0, 2))] * (n - len(feats))
+            elif centre is not None:
+                per_frame = [c[None] if np.all(np.isfinite(c)) else np.zeros((0, 2)) for c in centre]
+            else:
+                per_frame = []
+            if per_frame:
+                self._send_points2d(base, frames, per_frame, color, radius=2.0)
+            if centre is not None:
+                ok = np.all(np.isfinite(centre), axis=1)
+                cframes = rr.TimeColumn("frame", sequence=np.flatnonzero(ok))
+                if ok.any():
+                    self.stream.log(f"{base}/center", rr.Points2D.from_fields(
+                        colors=[color], radii=[5.0], labels=[o.name], show_labels=True), static=True)
+                    self.stream.send_columns(f"{base}/center", indexes=[cframes],
+                                             columns=rr.Points2D.columns(positions=centre[ok]))
+                    self.stream.log(f"{base}/path", rr.LineStrips2D(_finite_runs(centre), colors=[color],
+                                                                    radii=[1.0]), static=True)
+            # tracked positions in metres, next to the simulation
+            pos = np.asarray(o.position_m, float).reshape(-1, 3)[:n]
+            ok = np.all(np.isfinite(pos), axis=1)
+            if ok.any():
+                obase = f"observed/{_part(o.name)}"
+                self.stream.log(obase, rr.LineStrips3D(_finite_runs(pos), colors=[OBSERVED_COLOR],
+                                                       radii=[0.002], labels=[f"{o.name} (observed)"]),
+                                static=True)
+                self.stream.log(obase, rr.Points3D.from_fields(colors=[OBSERVED_COLOR], radii=[0.01]), static=True)
+                self.stream.send_columns(obase, indexes=[rr.TimeColumn("frame", sequence=np.flatnonzero(ok))],
+                                         columns=rr.Points3D.columns(positions=pos[ok]))
+
+    def _send_points2d(self, entity: str, frames: rr.TimeColumn, per_frame: list[np.ndarray],
+                       color, radius: float) -> None:
+        """Points per frame in one chunk (an empty batch where a frame has none, so none linger)."""
+        self.stream.log(entity, rr.Points2D.from_fields(colors=[color], radii=[radius]), static=True)
+        lengths = [len(p) for p in per_frame]
+        flat = np.concatenate(per_frame) if sum(lengths) else np.zeros((0, 2))
+        self.stream.send_columns(entity, indexes=[frames],
+                                 columns=rr.Points2D.columns(positions=flat).partition(lengths))
+
+    # -- simulation ------------------------------------------------------------------
+
+    def log_simulation(self, traj, label: str = "selected") -> None:
+        """A simulated trajectory at sim/<object>: its path (static, replaced on each call)
+        and the object's position per frame on timeline `frame`."""
+        if not self.enabled:
+            return
+        pos_all = np.asarray(traj.position_m, float)
+        n = pos_all.shape[1]
+        if n == 0:
+            return
+        self._at()
+        for i, name in enumerate(traj.names):
+            color = SIM_COLORS[i % len(SIM_COLORS)]
+            entity = f"sim/{_part(name)}"
+            pos = pos_all[i]
+            ok = np.all(np.isfinite(pos), axis=1)
+            self.stream.log(entity, rr.LineStrips3D(_finite_runs(pos), colors=[color], radii=[0.003],
+                                                    labels=[f"{name} ({label})"]), static=True)
+            self.stream.log(entity, rr.Points3D.from_fields(colors=[color], radii=[0.015]), static=True)
+            lengths = ok.astype(int)
+            self.stream.send_columns(entity, indexes=[rr.TimeColumn("frame", sequence=np.arange(n))],
+                                     columns=rr.Points3D.columns(positions=pos[ok]).partition(lengths))
+
+    # -- lifetime --------------------------------------------------------------------
+
+    def flush(self) -> None:
+        if not self.enabled:
+            return
+        with self._lock:
+            if self._dirty_sweep is not None:
+                self._resend_blueprint()
+        try:
+            self.stream.flush()
+        except RuntimeError as e:    # a viewer that went away: never fatal to the caller
+            log.warning("rerun flush failed: %s", e)
+
+    def close(self) -> None:
+        """Flush and close every sink (finishes the .rrd; in mode "web" stops the gRPC server,
+        the web viewer page stays up but has nothing to show). Idempotent, never raises
+        for a sink that went away."""
+        if not self.enabled:
+            return
+        self.flush()
+        self._closed = True
+        try:
+            self.stream.disconnect()
+        except RuntimeError as e:
+            log.warning("rerun disconnect failed: %s", e)
+
+    def __enter__(self) -> "RerunLogger":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

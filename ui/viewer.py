@@ -1,0 +1,398 @@
+"""The browser viewer (viser): the video over the simulated scene, samples, plots, steering.
+
+It only draws and forwards the user's edits to the controller (ui/controller.py); the
+one computation it does itself is re-simulating the selected sample (Bullet, in this
+process) so the 3-D scene shows what that sample predicts.
+
+* 3-D: ground, ramp, the objects with their tracked shapes posed from the selected
+  sample's simulation at the current frame; the observed tracks (orange) and the
+  simulated trajectory (blue) as polylines; the video camera as a frustum showing the
+  current frame.
+* "Camera view" snaps each browser's camera to the video camera's pose and field of view
+  and puts the frame behind the scene, so simulation and video overlap (exactly when the
+  browser's viewport has the video's aspect ratio, 4:3; otherwise the background image is
+  stretched to the viewport); "Free view" undoes it.
+* GUI: frame slider with play; chain / sample scrubber and "jump to MAP"; log-likelihood
+  traces (uPlot) and posterior histograms; acceptance and R-hat; progress; prior bounds,
+  sigma and proposal widths; pause / resume / add / remove / reset / set chains.
+Several tabs share one state: the GUI lives on the server, so an edit shows everywhere.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+import viser
+from viser import uplot
+
+from galileo.physics import Simulator, Trajectory
+from galileo.scene import Camera, Scene
+from galileo.shapes import mesh as shape_mesh
+from galileo.tracking import Tracks
+
+OBJECT_COLORS = [(220, 90, 50), (70, 130, 220)]
+CHAIN_COLORS = ["#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#bfef45",
+                "#469990", "#9a6324", "#800000", "#808000", "#000075", "#a9a9a9", "#e6beff", "#fabebe"]
+
+
+def _wxyz_from_matrix(r: np.ndarray) -> np.ndarray:
+    """Quaternion (w, x, y, z) of a rotation matrix."""
+    q = trimesh.transformations.quaternion_from_matrix(np.block([[r, np.zeros((3, 1))], [np.zeros((1, 3)), 1]]))
+    return np.asarray(q)  # trimesh returns (w, x, y, z)
+
+
+def _wxyz_from_xyzw(q) -> np.ndarray:
+    return np.array([q[3], q[0], q[1], q[2]])
+
+
+def camera_pose(cam: Camera) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Viser camera pose for the video camera: (wxyz, position, vertical fov, aspect).
+
+    Viser's cameras follow the OpenCV convention (+z forward, +y down), as ours do, so the
+    camera-to-world rotation is the transpose of world_to_camera's."""
+    r, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
+    fov = 2 * np.arctan2(cam.height_px / 2, cam.K[1, 1])
+    return _wxyz_from_matrix(r.T), -r.T @ t, float(fov), cam.width_px / cam.height_px
+
+
+def _segments(points: np.ndarray) -> np.ndarray:
+    """(N, 3) polyline -> (N-1, 2, 3) segments, skipping NaN points."""
+    pts = points[~np.isnan(points).any(axis=1)]
+    if len(pts) < 2:
+        return np.zeros((1, 2, 3))
+    return np.stack([pts[:-1], pts[1:]], axis=1)
+
+
+@dataclass
+class Selection:
+    chain: int
+    index: int
+
+
+class Viewer:
+    def __init__(self, controller, scene: Scene, tracks: Tracks, video_rgb: np.ndarray, *,
+                 host: str = "127.0.0.1", port: int = 8080, target_sweeps: int = 75):
+        self.ctrl = controller
+        self.scene = scene
+        self.tracks = tracks
+        self.video = video_rgb
+        self.n_frames = min(len(video_rgb), tracks.n_frames)
+        self.fps = tracks.fps
+        self.target_sweeps = target_sweeps
+        self.sim = Simulator(scene)
+        self.traj: Trajectory | None = None
+        self.resimulations = 0
+        self.last_resim_s = 0.0
+        self.frame = 0
+        self.selection = Selection(0, 0)
+        self._lock = threading.RLock()
+        self._dirty = threading.Event()
+        self._stop = threading.Event()
+        self.camera_view = False
+        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.url = f"http://{host}:{self.server.get_port()}"
+        self._build_scene()
+        self._build_gui()
+        self.select_sample(*self._first_selection())
+        self._threads = [threading.Thread(target=self._refresh_loop, daemon=True),
+                         threading.Thread(target=self._play_loop, daemon=True)]
+        for t in self._threads:
+            t.start()
+        controller.add_listener(self._on_controller)
+
+    # -- 3-D scene -------------------------------------------------------------------------
+    def _build_scene(self) -> None:
+        s, sc = self.server.scene, self.scene
+        s.set_up_direction("+z")
+        s.add_grid("/ground", width=3.0, height=2.0, plane="xy", position=(0.0, 0.0, 0.0))
+        r = sc.ramp
+        ramp = trimesh.creation.box(extents=(r.length_m, r.width_m, r.thickness_m))
+        centre = -(r.length_m / 2) * r.downhill - (r.thickness_m / 2) * r.normal
+        # half transparent, so that in camera view the video's ramp shows through
+        s.add_mesh_simple("/ramp", ramp.vertices, ramp.faces, color=(196, 170, 130), opacity=0.45,
+                          position=centre, wxyz=_wxyz_from_xyzw(r.orientation_xyzw))
+        self.object_handles = []
+        for i, obj in enumerate(sc.objects):
+            m = shape_mesh(obj.shape).copy()
+            m.visual.face_colors = (*OBJECT_COLORS[i % 2], 255)
+            pos, orn = sc.initial_pose(i)
+            self.object_handles.append(s.add_mesh_trimesh(f"/objects/{obj.name}", m, position=pos,
+                                                          wxyz=_wxyz_from_xyzw(orn)))
+        for o in self.tracks.objects:
+            s.add_line_segments(f"/tracks/observed/{o.name}", _segments(o.position_m), (255, 140, 0),
+                                thickness=3, thickness_units="screen")
+        cam = sc.camera
+        wxyz, pos, fov, aspect = camera_pose(cam)
+        self.frustum = s.add_camera_frustum("/video_camera", fov=fov, aspect=aspect, scale=0.15,
+                                            image=self.video[0], format="jpeg", jpeg_quality=80,
+                                            wxyz=wxyz, position=pos)
+        self.sim_lines = []
+
+    def _update_sim_lines(self) -> None:
+        for h in self.sim_lines:
+            h.remove()
+        self.sim_lines = [self.server.scene.add_line_segments(
+            f"/tracks/simulated/{name}", _segments(self.traj.position_m[i]), (40, 90, 230), thickness=3,
+            thickness_units="screen") for i, name in enumerate(self.traj.names)]
+
+    # -- GUI ----------------------------------------------------------------------------------
+    def _build_gui(self) -> None:
+        g = self.server.gui
+        ctrl = self.ctrl
+        with g.add_folder("Video"):
+            self.frame_slider = g.add_slider("Frame", 0, self.n_frames - 1, 1, 0)
+            self.play = g.add_checkbox("Play", False)
+            self.view_button = g.add_button("Camera view")
+            self.free_button = g.add_button("Free view")
+        with g.add_folder("Samples"):
+            self.chain_dropdown = g.add_dropdown("Chain", [str(c) for c in ctrl.chain_ids()] or ["0"])
+            self.sample_slider = g.add_slider("Sample", 0, 1, 1, 0)
+            self.map_button = g.add_button("Jump to MAP")
+            self.sample_text = g.add_markdown("")
+        with g.add_folder("Chains"):
+            self.progress = g.add_progress_bar(0.0, animated=True)
+            self.status_text = g.add_markdown("")
+            self.trace_plot = g.add_uplot((np.zeros(1), np.zeros(1)), (uplot.Series(label="sweep"),
+                                                                       uplot.Series(label="chain 0")),
+                                          title="log-likelihood per chain", aspect=1.6,
+                                          scales={"x": uplot.Scale(time=False)})
+            self.hist_plots = {n: g.add_uplot((np.zeros(1), np.zeros(1)),
+                                              (uplot.Series(label=n), uplot.Series(label="count", stroke="#444",
+                                                                                   fill="#4363d855")),
+                                              title=f"posterior {n}", aspect=2.5,
+                                              scales={"x": uplot.Scale(time=False)}) for n in ctrl.names}
+        with g.add_folder("Priors and settings", expand_by_default=False):
+            st = ctrl.settings
+            self.bound_inputs = {}
+            for n in ctrl.names:
+                lo, hi = st.bounds[n]
+                self.bound_inputs[n] = g.add_vector2(f"{n} bounds", (lo, hi), step=0.001)
+            self.sigma_input = g.add_number("sigma (m/s)", st.sigma_mps, min=1e-4, step=0.001)
+            self.narrow_input = g.add_number("narrow width", st.narrow, min=1e-4, step=0.001)
+            self.broad_input = g.add_number("broad width", st.broad, min=1e-4, step=0.01)
+            self.every_input = g.add_number("broad every", st.broad_every, min=0, step=1)
+            self.apply_button = g.add_button("Apply")
+        with g.add_folder("Steering", expand_by_default=False):
+            self.pause_all = g.add_button("Pause all")
+            self.resume_all = g.add_button("Resume all")
+            self.pause_one = g.add_button("Pause chain")
+            self.resume_one = g.add_button("Resume chain")
+            self.add_button = g.add_button("Add chain")
+            self.remove_button = g.add_button("Remove chain")
+            self.reset_map = g.add_button("Reset chain to MAP")
+            self.reset_sel = g.add_button("Reset chain to selected sample")
+            self.set_inputs = {n: g.add_number(n, 0.1, step=0.001) for n in ctrl.names}
+            self.set_button = g.add_button("Set chain's latents")
+        self._wire()
+
+    def _chain(self) -> int:
+        return int(self.chain_dropdown.value)
+
+    def _wire(self) -> None:
+        ctrl = self.ctrl
+        self.frame_slider.on_update(lambda _: self.set_frame(int(self.frame_slider.value)))
+        self.view_button.on_click(lambda ev: self.snap_camera(ev.client))
+        self.free_button.on_click(lambda ev: self.free_view())
+        self.chain_dropdown.on_update(lambda _: self._on_chain_changed())
+        self.sample_slider.on_update(lambda _: self.select_sample(self._chain(), int(self.sample_slider.value)))
+        self.map_button.on_click(lambda _: self.jump_to_map())
+
+        def apply(_):
+            try:
+                for n, h in self.bound_inputs.items():
+                    lo, hi = (float(v) for v in h.value)
+                    if (lo, hi) != tuple(ctrl.settings.bounds[n]):
+                        ctrl.set_bounds(n, lo, hi)
+                if float(self.sigma_input.value) != ctrl.settings.sigma_mps:
+                    ctrl.set_sigma(float(self.sigma_input.value))
+                widths = (float(self.narrow_input.value), float(self.broad_input.value), int(self.every_input.value))
+                st = ctrl.settings
+                if widths != (st.narrow, st.broad, st.broad_every):
+                    ctrl.set_widths(*widths)
+            except ValueError as e:
+                self._notify(str(e))
+
+        self.apply_button.on_click(apply)
+        self.pause_all.on_click(lambda _: ctrl.pause())
+        self.resume_all.on_click(lambda _: ctrl.resume())
+        self.pause_one.on_click(lambda _: ctrl.pause(self._chain()))
+        self.resume_one.on_click(lambda _: ctrl.resume(self._chain()))
+        self.add_button.on_click(lambda _: ctrl.add_chains(1))
+        self.remove_button.on_click(lambda _: ctrl.remove_chain(self._chain()))
+        self.reset_map.on_click(lambda _: ctrl.reset_chain(self._chain(), "map"))
+        self.reset_sel.on_click(lambda _: ctrl.reset_chain(self._chain(), "sample",
+                                                           (self.selection.chain, self.selection.index)))
+        self.set_button.on_click(lambda _: ctrl.set_chain(
+            self._chain(), {n: float(h.value) for n, h in self.set_inputs.items()}))
+
+    def _notify(self, text: str) -> None:
+        for client in self.server.get_clients().values():
+            client.add_notification("Galileo", text, color="red", auto_close_seconds=5.0)
+
+    # -- actions --------------------------------------------------------------------------------
+    def _first_selection(self) -> tuple[int, int]:
+        m = self.ctrl.map()
+        if m is not None:
+            return m[0], m[1]
+        ids = self.ctrl.chain_ids()
+        return (ids[0] if ids else 0), 0
+
+    def select_sample(self, chain: int, index: int) -> float:
+        """Re-simulate sample `index` of `chain` and redraw; returns the server-side seconds."""
+        t0 = time.perf_counter()
+        with self._lock:
+            samples = self.ctrl.samples(chain)
+            if len(samples) == 0:
+                values = None
+                index = 0
+            else:
+                index = int(np.clip(index, 0, len(samples) - 1))
+                values = {n: float(v) for n, v in zip(self.ctrl.names, samples[index])}
+            self.selection = Selection(chain, index)
+            self.traj = self.sim.run(self.n_frames, values, fps=self.fps, with_orientation=True)
+            self.resimulations += 1
+            self._pose_objects(self.frame)
+            self._update_sim_lines()
+            ll = self.ctrl.logliks(chain)[index] if len(samples) else float("nan")
+            self.sample_text.content = (f"chain {chain}, sample {index}: " + ", ".join(
+                f"{k} = {v:.3f}" for k, v in (values or {}).items()) + f"; log-lik {ll:.1f}")
+            self.last_resim_s = time.perf_counter() - t0
+        return self.last_resim_s
+
+    def jump_to_map(self) -> None:
+        m = self.ctrl.map()
+        if m is None:
+            return
+        chain, index = m[0], m[1]
+        if str(chain) in self.chain_dropdown.options:
+            self.chain_dropdown.value = str(chain)
+        self.sample_slider.max = max(len(self.ctrl.samples(chain)) - 1, 1)
+        self.sample_slider.value = index
+        self.select_sample(chain, index)
+
+    def _on_chain_changed(self) -> None:
+        chain = self._chain()
+        n = len(self.ctrl.samples(chain))
+        self.sample_slider.max = max(n - 1, 1)
+        self.sample_slider.value = max(n - 1, 0)
+        self.select_sample(chain, max(n - 1, 0))
+
+    def _pose_objects(self, frame: int) -> None:
+        traj = self.traj
+        f = int(np.clip(frame, 0, traj.n_frames - 1))
+        for i, h in enumerate(self.object_handles):
+            h.position = traj.position_m[i, f]
+            h.wxyz = _wxyz_from_xyzw(traj.orientation_xyzw[i, f])
+
+    def set_frame(self, frame: int) -> None:
+        with self._lock:
+            self.frame = int(np.clip(frame, 0, self.n_frames - 1))
+            self._pose_objects(self.frame)
+            img = self.video[self.frame]
+            self.frustum.image = img
+            if self.camera_view:
+                self.server.scene.set_background_image(img, format="jpeg", jpeg_quality=85)
+
+    def snap_camera(self, client=None) -> None:
+        wxyz, pos, fov, _ = camera_pose(self.scene.camera)
+        clients = [client] if client is not None else list(self.server.get_clients().values())
+        fwd = np.array(trimesh.transformations.quaternion_matrix(wxyz))[:3, 2]
+        for c in clients:
+            with c.atomic():
+                c.camera.fov = fov
+                c.camera.wxyz = wxyz
+                c.camera.position = pos
+                c.camera.look_at = pos + 1.2 * fwd
+        self.camera_view = True
+        self.server.scene.set_background_image(self.video[self.frame], format="jpeg", jpeg_quality=85)
+        self.frustum.visible = False
+
+    def free_view(self) -> None:
+        self.camera_view = False
+        self.server.scene.set_background_image(None)
+        self.frustum.visible = True
+
+    # -- live updates --------------------------------------------------------------------------
+    def _on_controller(self, kind: str, payload: dict) -> None:
+        self._dirty.set()
+
+    def _refresh_loop(self) -> None:
+        while not self._stop.is_set():
+            if self._dirty.wait(0.5):
+                self._dirty.clear()
+                try:
+                    self.refresh()
+                except Exception:  # a closing server must not kill the thread with a traceback storm
+                    if self._stop.is_set():
+                        return
+            self._stop.wait(0.5)  # at most 2 refreshes a second
+
+    def refresh(self) -> None:
+        ctrl = self.ctrl
+        ids = ctrl.chain_ids()
+        opts = [str(c) for c in ids] or ["0"]
+        if tuple(opts) != tuple(self.chain_dropdown.options):
+            self.chain_dropdown.options = opts
+        chain = self._chain()
+        n = len(ctrl.samples(chain))
+        if n > 1 and self.sample_slider.max != n - 1:
+            self.sample_slider.max = n - 1
+        st = ctrl.status()
+        done = sum(min(c["sweeps"], self.target_sweeps) for c in st["chains"].values())
+        self.progress.value = 100.0 * done / max(self.target_sweeps * max(len(ids), 1), 1)
+        acc = ", ".join(f"{k} {v:.2f}" for k, v in (st.get("acceptance") or {}).items() if v is not None)
+        rh = ", ".join(f"{k} {v:.2f}" for k, v in (st.get("r_hat") or {}).items() if v is not None)
+        m = ctrl.map()
+        map_txt = "" if m is None else ("MAP (chain %d, sample %d): " % (m[0], m[1]) +
+                                        ", ".join(f"{k} = {v:.3f}" for k, v in m[2].items()) + f", log-lik {m[3]:.1f}")
+        running = sum(1 for c in st["chains"].values() if c.get("running"))
+        self.status_text.content = (f"{running} running / {len(ids)} chains, {st.get('sweeps', 0)} sweeps  \n"
+                                    f"acceptance: {acc or '-'}  \nR-hat: {rh or '-'}  \n{map_txt}")
+        self._update_plots(ids)
+
+    def _update_plots(self, ids: list[int]) -> None:
+        ctrl = self.ctrl
+        traces = [ctrl.logliks(c) for c in ids]
+        length = max((len(t) for t in traces), default=0)
+        if length == 0:
+            return
+        x = np.arange(1, length + 1, dtype=float)
+        ys = []
+        for t in traces:
+            y = np.full(length, np.nan)
+            y[:len(t)] = t
+            ys.append(y)
+        sweeps = [e["sweep"] for e in ctrl.events]
+        series = (uplot.Series(label="sweep"),) + tuple(
+            uplot.Series(label=f"chain {c}", stroke=CHAIN_COLORS[c % len(CHAIN_COLORS)], width=1) for c in ids)
+        title = "log-likelihood per chain" + (f" (edits at sweeps {sorted(set(sweeps))})" if sweeps else "")
+        self.trace_plot.series = series
+        self.trace_plot.data = (x, *ys)
+        self.trace_plot.title = title
+        samples = [ctrl.samples(c) for c in ids]
+        kept = np.concatenate([s[len(s) // 2:] for s in samples if len(s)]) if any(len(s) for s in samples) else None
+        if kept is None:
+            return
+        for j, n in enumerate(ctrl.names):
+            lo, hi = ctrl.settings.bounds[n]
+            counts, edges = np.histogram(kept[:, j], bins=30, range=(lo, hi))
+            self.hist_plots[n].data = (edges[:-1].astype(float), counts.astype(float))
+
+    def _play_loop(self) -> None:
+        while not self._stop.is_set():
+            if self.play.value:
+                f = (self.frame + 1) % self.n_frames
+                self.frame_slider.value = f  # its callback poses the objects
+                self._stop.wait(1.0 / self.fps)
+            else:
+                self._stop.wait(0.1)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._dirty.set()
+        for t in self._threads:
+            t.join(timeout=2)
+        self.server.stop()
