@@ -83,14 +83,19 @@ def read_frames(path: str | os.PathLike, fmt: str = "rgb24") -> Iterator[np.ndar
         box.close()
 
 
-def read_video(path: str | os.PathLike, fmt: str = "rgb24") -> tuple[np.ndarray, VideoInfo]:
-    """All frames (n, H, W[, 3]) and the stream's properties."""
+def _frame_rate(path: str | os.PathLike) -> float:
+    """The stream's frame rate (checks that the file opens and has a video stream)."""
     box = _open(path)
     try:
         rate = box.streams.video[0].average_rate or box.streams.video[0].guessed_rate
-        fps = float(rate) if rate else 30.0
+        return float(rate) if rate else 30.0
     finally:
         box.close()
+
+
+def read_video(path: str | os.PathLike, fmt: str = "rgb24") -> tuple[np.ndarray, VideoInfo]:
+    """All frames (n, H, W[, 3]) and the stream's properties."""
+    fps = _frame_rate(path)
     frames = list(read_frames(path, fmt))
     if not frames:
         raise GalileoError(f"video {path} has no decodable frames")
@@ -104,12 +109,7 @@ def read_video_yuv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, Vid
     H.264 stores yuv420p: the luma plane is the grey image trackers want and the chroma
     planes are already at the half resolution background subtraction runs at.
     """
-    box = _open(path)
-    try:
-        rate = box.streams.video[0].average_rate or box.streams.video[0].guessed_rate
-        fps = float(rate) if rate else 30.0
-    finally:
-        box.close()
+    fps = _frame_rate(path)
     ys, uvs = [], []
     for f in read_frames(path, "yuv420p"):
         h = f.shape[0] * 2 // 3

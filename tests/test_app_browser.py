@@ -1,7 +1,6 @@
 """One real-browser test: headless Chromium (Debian's, driven by Playwright) loads the
 viewer, the viser client connects, the sample slider is moved in the page, and the server
 re-simulates and poses the objects differently."""
-import os
 import shutil
 import time
 from pathlib import Path
@@ -9,35 +8,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import demo_viewer
+
 CHROMIUM = "/usr/bin/chromium"
 pytestmark = pytest.mark.skipif(not Path(CHROMIUM).exists() or shutil.which("chromium") is None,
                                 reason="Debian chromium not installed (.ci/run installs it)")
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def viewer(demo_dir, tmp_path_factory):
-    from galileo.likelihood import scene_for_inference
-    from galileo.scene import Scene
-    from galileo.tracking import track
-    from galileo.video import read_video
-    from ui.controller import Controller
-    from ui.viewer import Viewer
-
-    scene = Scene.load(demo_dir / "scene.json")
-    tracks = track(demo_dir / "video.mp4", scene, progress=False)
-    ctrl = Controller(scene, tracks, chains=2, seed=0, workers=1,
-                      session_dir=tmp_path_factory.mktemp("session"))
-    ctrl.run_sweeps(4)
-    video, _ = read_video(demo_dir / "video.mp4")
-    v = Viewer(ctrl, scene_for_inference(scene, tracks), tracks, video, port=_free_port())
+    ctrl, v = demo_viewer(demo_dir, tmp_path_factory.mktemp("session"), chains=2, seed=0, sweeps=4)
     yield v
     v.close()
     ctrl.close()

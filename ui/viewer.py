@@ -365,13 +365,19 @@ class Viewer:
             y = np.full(length, np.nan)
             y[:len(t)] = t
             ys.append(y)
-        sweeps = [e["sweep"] for e in ctrl.events]
+        # edits (priors, sigma, widths, steering) as markers on the traces at the sweep they took effect
+        marks = np.full(length, np.nan)
+        top = np.nanmax(np.stack(ys), axis=0) if ys else marks
+        edits = sorted({e["sweep"] for e in ctrl.events if e["kind"] not in ("init",)})
+        for sw in edits:
+            if 1 <= sw <= length:
+                marks[sw - 1] = top[sw - 1]
         series = (uplot.Series(label="sweep"),) + tuple(
-            uplot.Series(label=f"chain {c}", stroke=CHAIN_COLORS[c % len(CHAIN_COLORS)], width=1) for c in ids)
-        title = "log-likelihood per chain" + (f" (edits at sweeps {sorted(set(sweeps))})" if sweeps else "")
+            uplot.Series(label=f"chain {c}", stroke=CHAIN_COLORS[c % len(CHAIN_COLORS)], width=1) for c in ids
+        ) + (uplot.Series(label="edit", stroke="#000", width=0, points=uplot.Series_Points(show=True, size=9)),)
         self.trace_plot.series = series
-        self.trace_plot.data = (x, *ys)
-        self.trace_plot.title = title
+        self.trace_plot.data = (x, *ys, marks)
+        self.trace_plot.title = "log-likelihood per chain" + (f" (edits at sweeps {edits})" if edits else "")
         samples = [ctrl.samples(c) for c in ids]
         kept = np.concatenate([s[len(s) // 2:] for s in samples if len(s)]) if any(len(s) for s in samples) else None
         if kept is None:
