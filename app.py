@@ -77,7 +77,7 @@ def run(args) -> int:
     from galileo.errors import GalileoError
     from galileo.jsonio import write_json
     from galileo.scene import Scene
-    from galileo.tracking import Tracks, track
+    from galileo.tracking import track
     from galileo.video import read_video
     from ui.controller import Controller, Settings
     from ui.rerun_log import RerunLogger

@@ -9,7 +9,6 @@ accepted, stopped early); the viewer and sessions replay from this record.
 """
 from __future__ import annotations
 
-import math
 import multiprocessing as mp
 import os
 import time

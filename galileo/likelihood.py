@@ -43,7 +43,7 @@ import numpy as np
 from .bullet import pb
 from .errors import GalileoError
 from .physics import Simulator
-from .scene import LATENTS, Scene
+from .scene import Scene
 from .tracking import Tracks
 
 REST_MPS = 1e-4      # linear speed below which an object counts as at rest
@@ -105,11 +105,6 @@ class VelocityLikelihood:
     # -- pieces --------------------------------------------------------------------------
     def values_of(self, position) -> dict[str, float]:
         return {n: float(v) for n, v in zip(self.names, position)}
-
-    def frame_terms(self, vel_xz: np.ndarray, frames: slice | np.ndarray) -> np.ndarray:
-        """Per-frame log-likelihood terms (without the normaliser) for simulated velocities."""
-        d = self.v_obs[:, frames] - vel_xz
-        return -0.5 * np.einsum("ofk,ofk,of->f", d, d, self.seen[:, frames]) / self.sigma_mps ** 2
 
     def _frame_term(self, f: int, vel: np.ndarray) -> float:
         d = self.v_obs[:, f] - vel[:, [0, 2]]
@@ -262,5 +257,3 @@ class VelocityLikelihood:
         _, _, rec = self._evaluate(self.values_of(position), -math.inf, record=True)
         return rec
 
-
-LATENT_NAMES = tuple(LATENTS)

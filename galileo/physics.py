@@ -31,7 +31,7 @@ import trimesh
 
 from .jsonio import read_json, write_json
 from .errors import GalileoError
-from .scene import LATENTS, Scene, SceneObject
+from .scene import Scene, SceneObject
 from .shapes import render_mesh, torus_convex_parts
 
 GROUND_SIZE_M = (8.0, 4.0, 0.1)
@@ -305,7 +305,3 @@ class Simulator:
 def simulate(scene: Scene, n_frames: int, values: dict[str, float] | None = None,
              fps: float | None = None) -> Trajectory:
     return Simulator(scene).run(n_frames, values, fps)
-
-
-def latents_of(values: dict[str, float]) -> dict[str, float]:
-    return {k: v for k, v in values.items() if k in LATENTS}

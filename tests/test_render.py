@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from galileo.render import Look, Renderer
-from galileo.scene import Camera, default_camera, default_scene
+from galileo.scene import default_camera, default_scene
 from galileo.shapes import Shape
 
 

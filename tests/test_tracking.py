@@ -1,6 +1,5 @@
 """Tracking against ground truth renders, camera geometry, velocities, bad input."""
 import json
-import math
 
 import numpy as np
 import pytest
