@@ -105,10 +105,16 @@ def _get_client() -> int:
     return _client
 
 
+_mesh_dir_pid: int | None = None
+
+
 def _scratch_dir() -> Path:
-    global _mesh_dir
-    if _mesh_dir is None:
+    """This process's folder for mesh and texture files (a forked child makes its own: two
+    processes writing the same file name made the renderer read half-written textures)."""
+    global _mesh_dir, _mesh_dir_pid
+    if _mesh_dir is None or _mesh_dir_pid != os.getpid():
         _mesh_dir = Path(tempfile.mkdtemp(prefix="galileo-meshes-"))
+        _mesh_dir_pid = os.getpid()
         atexit.register(shutil.rmtree, _mesh_dir, ignore_errors=True)
     return _mesh_dir
 

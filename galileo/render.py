@@ -68,9 +68,18 @@ def grain_texture(rgb: tuple[int, int, int], rng: np.random.Generator, px: int =
 
 
 def _load_texture(img_rgb: np.ndarray, name: str, cid: int) -> int:
+    """Write the texture to a PNG (whole, then renamed into place) and load it."""
+    import os
+
     path = _scratch_dir() / f"{name}.png"
-    cv2.imwrite(str(path), img_rgb[..., ::-1])
-    return pb.loadTexture(str(path), physicsClientId=cid)
+    tmp = path.with_name(f".{path.stem}.tmp.png")
+    if not cv2.imwrite(str(tmp), img_rgb[..., ::-1]):
+        raise RuntimeError(f"cannot write texture {tmp}")
+    os.replace(tmp, path)
+    tex = pb.loadTexture(str(path), physicsClientId=cid)
+    if tex < 0:
+        raise RuntimeError(f"pybullet could not load texture {path}")
+    return tex
 
 
 def object_color(scene: Scene, index: int) -> tuple[int, int, int]:
@@ -116,12 +125,12 @@ class Renderer:
         cid = w.cid
         rng = np.random.default_rng(texture_seed)
         pb.changeVisualShape(w.ground, -1, rgbaColor=[1, 1, 1, 1], physicsClientId=cid,
-                             textureUniqueId=_load_texture(grain_texture((150, 150, 145), rng, strength=8), "ground", cid))
+                             textureUniqueId=_load_texture(grain_texture((150, 150, 145), rng, strength=8), f"ground_{texture_seed}", cid))
         pb.changeVisualShape(w.ramp, -1, rgbaColor=[1, 1, 1, 1], physicsClientId=cid,
-                             textureUniqueId=_load_texture(grain_texture((196, 170, 130), rng, strength=14, streaks=True), "ramp", cid))
+                             textureUniqueId=_load_texture(grain_texture((196, 170, 130), rng, strength=14, streaks=True), f"ramp_{texture_seed}", cid))
         if w.backdrop is not None:
             pb.changeVisualShape(w.backdrop, -1, rgbaColor=[1, 1, 1, 1], physicsClientId=cid,
-                                 textureUniqueId=_load_texture(grain_texture((225, 228, 232), rng, strength=5), "wall", cid))
+                                 textureUniqueId=_load_texture(grain_texture((225, 228, 232), rng, strength=5), f"wall_{texture_seed}", cid))
         for i, b in enumerate(w.bodies):
             tex = block_texture((colors or {}).get(i) or object_color(scene, i), rng)
             pb.changeVisualShape(b, -1, rgbaColor=[1, 1, 1, 1], physicsClientId=cid,
