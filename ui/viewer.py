@@ -245,6 +245,7 @@ class Viewer:
         t0 = time.perf_counter()
         with self._lock:
             samples = self.ctrl.samples(chain)
+            self.selection_empty = len(samples) == 0
             if len(samples) == 0:
                 values = None
                 index = 0
@@ -340,6 +341,9 @@ class Viewer:
         n = len(ctrl.samples(chain))
         if n > 1 and self.sample_slider.max != n - 1:
             self.sample_slider.max = n - 1
+        if n and self.selection_empty:  # the first samples arrived: show the latest
+            self.sample_slider.value = n - 1
+            self.select_sample(chain, n - 1)
         st = ctrl.status()
         done = sum(min(c["sweeps"], self.target_sweeps) for c in st["chains"].values())
         self.progress.value = 100.0 * done / max(self.target_sweeps * max(len(ids), 1), 1)
@@ -360,23 +364,23 @@ class Viewer:
         if length == 0:
             return
         x = np.arange(1, length + 1, dtype=float)
-        ys = []
-        for t in traces:
-            y = np.full(length, np.nan)
-            y[:len(t)] = t
-            ys.append(y)
-        # edits (priors, sigma, widths, steering) as markers on the traces at the sweep they took effect
-        marks = np.full(length, np.nan)
-        top = np.nanmax(np.stack(ys), axis=0) if ys else marks
-        edits = sorted({e["sweep"] for e in ctrl.events if e["kind"] not in ("init",)})
-        for sw in edits:
-            if 1 <= sw <= length:
-                marks[sw - 1] = top[sw - 1]
-        series = (uplot.Series(label="sweep"),) + tuple(
-            uplot.Series(label=f"chain {c}", stroke=CHAIN_COLORS[c % len(CHAIN_COLORS)], width=1) for c in ids
-        ) + (uplot.Series(label="edit", stroke="#000", width=0, points=uplot.Series_Points(show=True, size=9)),)
-        self.trace_plot.series = series
-        self.trace_plot.data = (x, *ys, marks)
+        # uPlot draws nothing if a series holds NaN: a shorter (paused, removed) chain's trace is
+        # held at its last value
+        ys = [np.concatenate([t, np.full(length - len(t), t[-1] if len(t) else 0.0)]) for t in traces]
+        series = [uplot.Series(label="sweep")] + [
+            uplot.Series(label=f"chain {c}", stroke=CHAIN_COLORS[c % len(CHAIN_COLORS)], width=1) for c in ids]
+        data = [x, *ys]
+        # edits (priors, sigma, widths, steering) as spikes from the bottom at the sweep they took effect
+        edits = sorted({e["sweep"] for e in ctrl.events if e["kind"] != "init" and 1 <= e["sweep"] <= length})
+        if edits:
+            stack = np.stack(ys)
+            marks = np.full(length, float(stack.min()))
+            for sw in edits:
+                marks[sw - 1] = float(stack[:, sw - 1].max())
+            series.append(uplot.Series(label="edit", stroke="#000", width=1))
+            data.append(marks)
+        self.trace_plot.series = tuple(series)
+        self.trace_plot.data = tuple(data)
         self.trace_plot.title = "log-likelihood per chain" + (f" (edits at sweeps {edits})" if edits else "")
         samples = [ctrl.samples(c) for c in ids]
         kept = np.concatenate([s[len(s) // 2:] for s in samples if len(s)]) if any(len(s) for s in samples) else None
