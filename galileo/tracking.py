@@ -43,7 +43,6 @@ from tqdm import tqdm
 
 from .errors import GalileoError
 from .jsonio import read_json, write_json
-from .physics import Trajectory
 from .scene import Camera, Scene
 from .shapes import Shape
 from .video import read_video_yuv, yuv_to_rgb
@@ -136,12 +135,6 @@ class Tracks:
     @classmethod
     def load(cls, path: str | Path) -> "Tracks":
         return cls.from_json(read_json(path, "tracks file"))
-
-    def as_trajectory(self) -> Trajectory:
-        """The tracks in the trajectory layout (NaN where not visible)."""
-        return Trajectory(self.fps, [o.name for o in self.objects],
-                          np.stack([o.position_m for o in self.objects]),
-                          np.stack([o.velocity_mps for o in self.objects]))
 
 
 # -- background subtraction ---------------------------------------------------------------
