@@ -9,11 +9,15 @@ variance is 0.0025 m^2/s^2). The simulation runs as many frames as the video; fr
 where an object was not seen are left out. Shapes and the ramp object's offset are fixed
 from tracking (section 3.1).
 
-The model treats a world at rest as staying at rest: once every object moves slower
-than REST_MPS (and turns slower than REST_RADPS) for two consecutive frames, later frames
-hold the last positions with zero velocity (a deterministic version of Bullet's
-sleeping). Both paths below apply it. (An object whose friction is within ~1e-3 of tan of
-the ramp angle creeps slower than that and counts as at rest.)
+The model treats a world at rest as staying at rest: once, for two consecutive frames,
+every object moves slower than REST_MPS (1 mm/s, sigma / 50), turns slower than REST_RADPS
+(0.02 rad/s: 1 mm/s at 5 cm from the centre) and is not speeding up (by more than
+REST_CREEP_MPS per frame), later frames hold the last positions with zero velocity (a
+deterministic version of Bullet's sleeping). Both paths below apply it. Bullet's resting
+contacts relax (the speed halves every frame) and often leave a slow yaw drift behind a
+collision (~1e-3 rad/s, 1e-4 m/s); the rule ends those runs. An object on the verge of
+sliding (friction within ~2e-4 of tan of the ramp angle) creeps slower than the rule sees
+and counts as at rest: it would move about 3 mm in 2 s.
 
 Exact speed-ups (`speedups=True`; each gives the same accept/reject decisions as the
 plain path, `speedups=False`, which simulates every frame of every proposal):
@@ -22,14 +26,18 @@ plain path, `speedups=False`, which simulates every frame of every proposal):
   the final value; the simulation stops once it falls below the MH threshold.
 * at-rest cut-off: once the world is at rest, the remaining frames are known without
   stepping.
-* prefix reuse: before the objects first touch, the masses do not matter (sliding is
-  mass-independent). The model makes this exact: both paths simulate with unit masses
-  until first contact, go back to the frame before it, drop the contacts, set the
-  proposal's masses and go on. The world at that frame then depends only on (k1, k2), and
-  a proposal with the same frictions resumes from a saved copy of it, with the per-frame
-  terms up to there already summed. (k2 matters before contact: the target settles on the
-  ground depending on its friction.) Without contact (no target, or the object stops short
-  of it) the whole result depends only on (k1, k2) and is reused whole.
+* prefix reuse: before the objects first touch, their masses and the target's friction do
+  not matter (sliding is mass-independent; the target rests on the ground). The model makes
+  this exact: both paths simulate phase A with unit masses and the target's friction at
+  PHASE_A_TARGET_FRICTION until the objects come within reach of each other (closest
+  distance <= what one frame's motion could close, plus SWITCH_MARGIN_M), then restart the
+  world from the objects' poses and velocities there (`Simulator.resume`: contacts start
+  cold), set the proposal's values and go on (phase B). The world at the switch frame
+  then depends only on k1, and any proposal with the same k1 resumes from the same
+  snapshot, with the per-frame terms up to there already summed. (Should the objects touch in
+  phase A all the same, the world is taken back to the frame before and switched there.)
+  Without a switch (no target, or the object stops short of it) the whole result depends
+  only on k1 and is reused whole.
 """
 from __future__ import annotations
 
@@ -46,10 +54,13 @@ from .physics import Simulator
 from .scene import Scene
 from .tracking import Tracks
 
-REST_MPS = 1e-4      # linear speed below which an object counts as at rest
-REST_RADPS = 1e-3    # and angular speed
+REST_MPS = 1e-3        # linear speed below which an object counts as at rest (m/s)
+REST_RADPS = 0.02      # and angular speed (rad/s)
+REST_CREEP_MPS = 5e-5  # ... as long as its speed grew by no more than this since the frame before
 SIGMA_MPS = 0.05
 UNIT_MASS_KG = 1.0   # the masses phase A runs with (see VelocityLikelihood._evaluate)
+PHASE_A_TARGET_FRICTION = 1.0   # and the target's friction (it rests on the ground until hit)
+SWITCH_MARGIN_M = 0.01          # phase A ends this much before one frame's reach
 
 
 def scene_for_inference(scene: Scene, tracks: Tracks) -> Scene:
@@ -70,10 +81,10 @@ def scene_for_inference(scene: Scene, tracks: Tracks) -> Scene:
 
 @dataclass
 class _Prefix:
-    contact_frame: int | None          # first frame in contact (None: never, in the full run)
-    state_id: int | None = None        # world saved at frame contact_frame - 1
-    terms: np.ndarray | None = None    # per-frame log-likelihood terms of frames < contact_frame
-    full: tuple | None = None          # without contact: the whole result (loglik, terms)
+    first_b: int | None                # first frame of phase B (None: no switch, `full` holds the result)
+    snapshot: tuple | None = None      # the objects' poses and velocities at frame first_b - 1
+    terms: np.ndarray | None = None    # per-frame log-likelihood terms of frames < first_b
+    full: float | None = None          # without a switch: the whole sum of terms
 
 
 class VelocityLikelihood:
@@ -92,12 +103,20 @@ class VelocityLikelihood:
         order = [next(t for t in tracks.objects if t.role == o.role) for o in self.scene.objects]
         self.v_obs = np.stack([np.nan_to_num(t.velocity_mps[:, [0, 2]]) for t in order])   # (O, F, 2)
         self.seen = np.stack([t.visible for t in order]).astype(float)                     # (O, F)
+        # per frame, the (vx, vz) of each object seen in it, as Python floats (the per-frame
+        # term is a handful of multiplications: numpy's call overhead would dominate it)
+        self._obs = [[(i, float(self.v_obs[i, f, 0]), float(self.v_obs[i, f, 1]))
+                      for i in range(len(order)) if self.seen[i, f]] for f in range(self.n_frames)]
+        self._half_prec = -0.5 / self.sigma_mps ** 2
         n_terms = 2 * self.seen.sum()
         self.log_norm = -n_terms * math.log(self.sigma_mps * math.sqrt(2 * math.pi))
         self.sim = Simulator(self.scene)
         self.spf = int(round(self.scene.sim_hz / self.fps))
+        # phase A ends once the objects are closer than one frame's motion could close:
+        # |v| / fps + g / fps^2 (if accelerating at up to g) plus a margin
+        self._reach_per_mps = 1.0 / self.fps
+        self._reach_const_m = self.scene.gravity_mps2 / self.fps ** 2 + SWITCH_MARGIN_M
         self._prefixes: OrderedDict[tuple, _Prefix] = OrderedDict()
-        self._prefix_world = None  # the world the prefixes' states were saved in
         self._cache_size = cache_size
         self.steps = 0          # physics steps taken (for benchmarks)
         self.evaluations = 0
@@ -106,21 +125,30 @@ class VelocityLikelihood:
     def values_of(self, position) -> dict[str, float]:
         return {n: float(v) for n, v in zip(self.names, position)}
 
-    def _frame_term(self, f: int, vel: np.ndarray) -> float:
-        d = self.v_obs[:, f] - vel[:, [0, 2]]
-        return float(-0.5 * np.sum((d * d).sum(axis=1) * self.seen[:, f]) / self.sigma_mps ** 2)
+    def _frame_term(self, f: int, vel) -> float:
+        """log N(v_obs | v_sim) of frame f, without the normaliser (vel: per object (vx, vy, vz))."""
+        acc = 0.0
+        for i, ox, oz in self._obs[f]:
+            v = vel[i]
+            dx, dz = ox - v[0], oz - v[2]
+            acc += dx * dx + dz * dz
+        return acc * self._half_prec
 
     @staticmethod
-    def _read(bodies, cid: int, vel: np.ndarray) -> bool:
-        """Linear velocities into `vel`; whether every object is at rest."""
-        rest = True
+    def _read(bodies, cid: int, speeds: list) -> tuple[list, bool]:
+        """Linear velocities of the bodies; whether every object is slow, turning slowly and
+        not speeding up (`speeds` holds each object's speed of the frame before; updated)."""
+        slow = True
+        vel = []
         for i, b in enumerate(bodies):
             lin, ang = pb.getBaseVelocity(b, physicsClientId=cid)
-            vel[i] = lin
-            if rest and (max(abs(lin[0]), abs(lin[1]), abs(lin[2])) >= REST_MPS
-                         or max(abs(ang[0]), abs(ang[1]), abs(ang[2])) >= REST_RADPS):
-                rest = False
-        return rest
+            vel.append(lin)
+            speed = math.sqrt(lin[0] * lin[0] + lin[1] * lin[1] + lin[2] * lin[2])
+            if slow and (speed >= REST_MPS or speed > speeds[i] + REST_CREEP_MPS
+                         or ang[0] * ang[0] + ang[1] * ang[1] + ang[2] * ang[2] >= REST_RADPS * REST_RADPS):
+                slow = False
+            speeds[i] = speed
+        return vel, slow
 
     def _rest_term(self, f0: int) -> float:
         """Sum of the terms of frames f0.. with zero simulated velocity."""
@@ -128,6 +156,16 @@ class VelocityLikelihood:
             return 0.0
         d = self.v_obs[:, f0:]
         return float(-0.5 * np.sum((d * d).sum(axis=2) * self.seen[:, f0:]) / self.sigma_mps ** 2)
+
+    def _phase_a_values(self, values: dict) -> dict:
+        """The proposal's values as phase A uses them: unit masses, the target's friction fixed."""
+        out = dict(values)
+        for k in values:
+            if k.endswith("_kg"):
+                out[k] = UNIT_MASS_KG
+            elif k.startswith("k") and k != "k1":
+                out[k] = PHASE_A_TARGET_FRICTION
+        return out
 
     # -- the target --------------------------------------------------------------------------
     def __call__(self, position, threshold: float | None = None):
@@ -142,18 +180,14 @@ class VelocityLikelihood:
     def _evaluate(self, values: dict, limit: float, record: bool = False):
         """Sum of the per-frame terms; (sum or partial sum, stopped early, positions/velocities).
 
-        Phase A runs with unit masses until the objects first touch (frame c); the world is
-        then taken back to frame c - 1, the contacts are dropped, the proposal's masses set,
-        and phase B runs on. Both paths do exactly this, so the state at c - 1 depends only
-        on (k1, k2) and a saved copy of it serves every proposal with the same frictions.
+        Phase A runs with unit masses and the target's friction fixed until the objects come
+        within one frame's reach of each other (frame s); there the contacts are dropped, the
+        proposal's values set, and phase B runs on from frame s + 1. Both paths do exactly
+        this, so the world at frame s depends only on k1 and a saved copy of it serves every
+        proposal with the same k1.
         """
         fast = self.speedups
-        if fast and self.sim.world is not self._prefix_world:
-            # The process's world was rebuilt (another scene simulated) and the saved states
-            # went with it: restoring their ids would fail or restore another world's state.
-            self._prefixes.clear()
-            self._prefix_world = self.sim.world
-        key = (values["k1"], values.get("k2"))  # all that phase A depends on
+        key = (values["k1"],)  # all that phase A depends on
         prefix = self._prefixes.get(key) if fast else None
         n = self.n_frames
         n_obj = len(self.scene.objects)
@@ -163,69 +197,72 @@ class VelocityLikelihood:
             self._prefixes.move_to_end(key)
             if prefix.full is not None and not record:
                 return prefix.full, False, None
-            if prefix.state_id is not None:
-                c = prefix.contact_frame
+            if prefix.snapshot is not None:
                 total = float(prefix.terms.sum())
                 if total < limit:
                     return total, True, None
-                pb.restoreState(prefix.state_id, physicsClientId=sim.world.cid)
-                return self._phase_b(values, c, total, limit, rec)
-        canonical = {**values, **{k: UNIT_MASS_KG for k in values if k.endswith("_kg")}}
+                return self._phase_b(values, prefix.first_b, prefix.snapshot, total, limit, rec)
+        canonical = self._phase_a_values(values)
         two = n_obj == 2
         w = sim.reset(canonical)
         terms = np.zeros(n)
-        status, f, total = self._frames(w, 0, 0.0, limit, terms, rec, detect_contact=two)
+        status, f, total = self._frames(w, 0, 0.0, limit, terms, rec, phase_a=two)
         if status == "early":
             return total, True, rec
-        if status != "contact":
+        if status not in ("contact", "switch"):
             if fast:
                 self._remember(key, _Prefix(None, full=total))
             return total, False, rec
-        c = f
-        if c == 0:  # touching from the start: no phase A
-            sim.reset(values)
-            return self._phase_b(values, 0, 0.0, limit, rec, restored=False)
-        total = float(terms[:c].sum())
-        w = sim.reset(canonical)  # back to frame c - 1
-        steps = self.spf * (c - 1)
-        for _ in range(steps):
-            pb.stepSimulation(physicsClientId=w.cid)
-        self.steps += steps
+        if status == "contact":  # touched within phase A after all: back to the frame before
+            if f == 0:  # touching from the start: no phase A
+                sim.reset(values)
+                return self._phase_b(values, 0, None, 0.0, limit, rec)
+            w = sim.reset(canonical)
+            steps = self.spf * (f - 1)
+            for _ in range(steps):
+                pb.stepSimulation(physicsClientId=w.cid)
+            self.steps += steps
+            first_b = f
+        else:
+            first_b = f + 1
+        total = float(terms[:first_b].sum())
+        snapshot = sim.snapshot()
         if fast:
-            self._remember(key, _Prefix(c, pb.saveState(physicsClientId=w.cid), terms[:c].copy()))
-        return self._phase_b(values, c, total, limit, rec)
+            self._remember(key, _Prefix(first_b, snapshot, terms[:first_b].copy()))
+        return self._phase_b(values, first_b, snapshot, total, limit, rec)
 
-    def _phase_b(self, values: dict, c: int, total: float, limit: float, rec, restored: bool = True):
-        """From frame c on, with the proposal's masses (the world is at frame c - 1)."""
+    def _phase_b(self, values: dict, first: int, snapshot: tuple | None, total: float, limit: float, rec):
+        """From frame `first` on, with the proposal's values, the world resumed from the
+        snapshot of frame first - 1 (None: the world is already set up at frame 0)."""
         sim = self.sim
-        if restored:
-            sim.drop_contacts()
-            sim.apply_values(values)
+        w = sim.resume(snapshot, values) if snapshot is not None else sim.world
         terms = np.zeros(self.n_frames)
-        status, _, total = self._frames(sim.world, c, total, limit, terms, rec, detect_contact=False)
+        status, _, total = self._frames(w, first, total, limit, terms, rec, phase_a=False)
         return total, status == "early", rec
 
-    def _frames(self, w, first: int, total: float, limit: float, terms: np.ndarray, rec, detect_contact: bool):
+    def _frames(self, w, first: int, total: float, limit: float, terms: np.ndarray, rec, phase_a: bool):
         """Step through frames first.. (stepping into `first` unless it is 0), adding terms.
 
         Returns (status, frame, total): "done", "early" (partial sum below the limit),
-        "rest" (the world came to rest; the rest of the frames added at zero velocity) or
-        "contact" (the objects touched at `frame`; its term is not added)."""
+        "rest" (the world came to rest; the rest of the frames added at zero velocity),
+        "contact" (in phase A, the objects touched at `frame`; its term is not added) or
+        "switch" (in phase A, the objects came within reach at `frame`; its term is added)."""
         fast = self.speedups
         cid, bodies = w.cid, w.bodies
         spf, n = self.spf, self.n_frames
-        vel = np.empty((len(bodies), 3))
         rest_run = 0
+        speeds = [math.inf] * len(bodies)
+        step, closest = pb.stepSimulation, pb.getClosestPoints
         for f in range(first, n):
             if f:
                 for _ in range(spf):
-                    pb.stepSimulation(physicsClientId=cid)
+                    step(physicsClientId=cid)
                 self.steps += spf
-            at_rest = self._read(bodies, cid, vel)
+            vel, at_rest = self._read(bodies, cid, speeds)
             if record := rec is not None:
                 rec[1][:, f] = vel
                 rec[0][:, f] = [pb.getBasePositionAndOrientation(b, physicsClientId=cid)[0] for b in bodies]
-            if detect_contact and pb.getContactPoints(bodies[0], bodies[1], physicsClientId=cid):
+            if phase_a and pb.getContactPoints(bodies[0], bodies[1], physicsClientId=cid):
                 return "contact", f, total
             rest_run = rest_run + 1 if (f and at_rest) else 0
             if rest_run >= 2:  # at rest: this frame and all later ones hold still
@@ -234,21 +271,25 @@ class VelocityLikelihood:
                     rec[1][:, f:] = 0.0
                 if not fast:  # the plain path steps through the rest all the same
                     for _ in range(spf * (n - 1 - f)):
-                        pb.stepSimulation(physicsClientId=cid)
+                        step(physicsClientId=cid)
                     self.steps += spf * (n - 1 - f)
                 return "rest", f, total + self._rest_term(f)
-            terms[f] = self._frame_term(f, vel)
-            total += terms[f]
+            terms[f] = term = self._frame_term(f, vel)
+            total += term
             if total < limit:
                 return "early", f, total
+            if phase_a:
+                (ax, ay, az), (bx, by, bz) = vel
+                speed = math.sqrt(ax * ax + ay * ay + az * az) + math.sqrt(bx * bx + by * by + bz * bz)
+                if closest(bodies[0], bodies[1], speed * self._reach_per_mps + self._reach_const_m,
+                           physicsClientId=cid):
+                    return "switch", f, total
         return "done", n - 1, total
 
     def _remember(self, key: tuple, entry: _Prefix) -> None:
         self._prefixes[key] = entry
         while len(self._prefixes) > self._cache_size:
-            _, old = self._prefixes.popitem(last=False)
-            if old.state_id is not None:
-                pb.removeState(old.state_id, physicsClientId=self.sim.world.cid)
+            self._prefixes.popitem(last=False)
 
     # -- trajectories (for predictions, the viewer) ------------------------------------------
     def simulated_motion(self, position) -> tuple[np.ndarray, np.ndarray]:

@@ -230,6 +230,28 @@ class Simulator:
         self.place(values)
         return w
 
+    def snapshot(self) -> tuple:
+        """The objects' poses and velocities now (plain floats): what `resume` starts from."""
+        w = self._world or self.world
+        cid = w.cid
+        return tuple(pb.getBasePositionAndOrientation(b, physicsClientId=cid)
+                     + pb.getBaseVelocity(b, physicsClientId=cid) for b in w.bodies)
+
+    def resume(self, snapshot: tuple, values: dict[str, float] | None = None) -> _World:
+        """The world as `reset` leaves it, with `values` applied and the objects at the
+        snapshot's poses and velocities (contacts start cold). Doing this at the frame a
+        snapshot was taken, and later from the snapshot, gives the same world bit for bit;
+        unlike saveState (~0.3 ms) it costs a few microseconds."""
+        w = self.world
+        cid = w.cid
+        pb.restoreState(w.state, physicsClientId=cid)
+        self.drop_contacts()
+        self.apply_values(values)
+        for b, (pos, orn, lin, ang) in zip(w.bodies, snapshot):
+            pb.resetBasePositionAndOrientation(b, pos, orn, physicsClientId=cid)
+            pb.resetBaseVelocity(b, lin, ang, physicsClientId=cid)
+        return w
+
     def drop_contacts(self) -> None:
         """Forget all contact manifolds (after restoreState; see `reset`)."""
         w = self._world or self.world
