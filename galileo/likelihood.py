@@ -116,6 +116,8 @@ class VelocityLikelihood:
         # |v| / fps + g / fps^2 (if accelerating at up to g) plus a margin
         self._reach_per_mps = 1.0 / self.fps
         self._reach_const_m = self.scene.gravity_mps2 / self.fps ** 2 + SWITCH_MARGIN_M
+        self._radius_m = [0.5 * float(np.linalg.norm(o.shape.size_m)) for o in self.scene.objects]
+        self._target_alone = self._simulate_target_alone() if len(self.scene.objects) == 2 else None
         self._prefixes: OrderedDict[tuple, _Prefix] = OrderedDict()
         self._cache_size = cache_size
         self.steps = 0          # physics steps taken (for benchmarks)
@@ -133,22 +135,6 @@ class VelocityLikelihood:
             dx, dz = ox - v[0], oz - v[2]
             acc += dx * dx + dz * dz
         return acc * self._half_prec
-
-    @staticmethod
-    def _read(bodies, cid: int, speeds: list) -> tuple[list, bool]:
-        """Linear velocities of the bodies; whether every object is slow, turning slowly and
-        not speeding up (`speeds` holds each object's speed of the frame before; updated)."""
-        slow = True
-        vel = []
-        for i, b in enumerate(bodies):
-            lin, ang = pb.getBaseVelocity(b, physicsClientId=cid)
-            vel.append(lin)
-            speed = math.sqrt(lin[0] * lin[0] + lin[1] * lin[1] + lin[2] * lin[2])
-            if slow and (speed >= REST_MPS or speed > speeds[i] + REST_CREEP_MPS
-                         or ang[0] * ang[0] + ang[1] * ang[1] + ang[2] * ang[2] >= REST_RADPS * REST_RADPS):
-                slow = False
-            speeds[i] = speed
-        return vel, slow
 
     def _rest_term(self, f0: int) -> float:
         """Sum of the terms of frames f0.. with zero simulated velocity."""
@@ -180,11 +166,12 @@ class VelocityLikelihood:
     def _evaluate(self, values: dict, limit: float, record: bool = False):
         """Sum of the per-frame terms; (sum or partial sum, stopped early, positions/velocities).
 
-        Phase A runs with unit masses and the target's friction fixed until the objects come
-        within one frame's reach of each other (frame s); there the contacts are dropped, the
-        proposal's values set, and phase B runs on from frame s + 1. Both paths do exactly
-        this, so the world at frame s depends only on k1 and a saved copy of it serves every
-        proposal with the same k1.
+        Phase A: the ramp object slides with unit mass while the target's motion alone (it
+        rests on the ground) is taken from `_target_alone`; until the objects come within
+        one frame's reach of each other (frame s). Phase B: the world restarts from both
+        objects' poses and velocities at frame s with the proposal's values and runs on from
+        frame s + 1. Both paths do exactly this, so the world at frame s depends only on k1
+        and its snapshot serves every proposal with the same k1.
         """
         fast = self.speedups
         key = (values["k1"],)  # all that phase A depends on
@@ -202,69 +189,93 @@ class VelocityLikelihood:
                 if total < limit:
                     return total, True, None
                 return self._phase_b(values, prefix.first_b, prefix.snapshot, total, limit, rec)
-        canonical = self._phase_a_values(values)
+        w = sim.reset(self._phase_a_values(values))
         two = n_obj == 2
-        w = sim.reset(canonical)
+        if two:  # the target takes no part in phase A's simulation: its motion alone is known
+            pb.setCollisionFilterGroupMask(w.bodies[1], -1, 0, 0, physicsClientId=w.cid)
         terms = np.zeros(n)
         status, f, total = self._frames(w, 0, 0.0, limit, terms, rec, phase_a=two)
         if status == "early":
             return total, True, rec
-        if status not in ("contact", "switch"):
+        if status != "switch":
             if fast:
                 self._remember(key, _Prefix(None, full=total))
             return total, False, rec
-        if status == "contact":  # touched within phase A after all: back to the frame before
-            if f == 0:  # touching from the start: no phase A
-                sim.reset(values)
-                return self._phase_b(values, 0, None, 0.0, limit, rec)
-            w = sim.reset(canonical)
-            steps = self.spf * (f - 1)
-            for _ in range(steps):
-                pb.stepSimulation(physicsClientId=w.cid)
-            self.steps += steps
-            first_b = f
-        else:
-            first_b = f + 1
+        first_b = f + 1
         total = float(terms[:first_b].sum())
-        snapshot = sim.snapshot()
+        pose, twist = self._target_alone[f]
+        snapshot = (sim.snapshot()[0], pose + twist)
         if fast:
             self._remember(key, _Prefix(first_b, snapshot, terms[:first_b].copy()))
         return self._phase_b(values, first_b, snapshot, total, limit, rec)
 
-    def _phase_b(self, values: dict, first: int, snapshot: tuple | None, total: float, limit: float, rec):
+    def _phase_b(self, values: dict, first: int, snapshot: tuple, total: float, limit: float, rec):
         """From frame `first` on, with the proposal's values, the world resumed from the
-        snapshot of frame first - 1 (None: the world is already set up at frame 0)."""
-        sim = self.sim
-        w = sim.resume(snapshot, values) if snapshot is not None else sim.world
+        snapshot of frame first - 1."""
+        w = self.sim.resume(snapshot, values)
         terms = np.zeros(self.n_frames)
         status, _, total = self._frames(w, first, total, limit, terms, rec, phase_a=False)
         return total, status == "early", rec
+
+    def _simulate_target_alone(self) -> list:
+        """Per frame, the target's ((position, orientation), (linear, angular velocity)) when
+        it is simulated alone with phase A's values (the ramp object takes no part)."""
+        sim = self.sim
+        values = self._phase_a_values({n: 0.5 for n in self.names})
+        w = sim.reset(values)
+        cid, target = w.cid, w.bodies[1]
+        pb.setCollisionFilterGroupMask(w.bodies[0], -1, 0, 0, physicsClientId=cid)
+        out = []
+        for f in range(self.n_frames):
+            if f:
+                for _ in range(self.spf):
+                    pb.stepSimulation(physicsClientId=cid)
+            out.append((pb.getBasePositionAndOrientation(target, physicsClientId=cid),
+                        pb.getBaseVelocity(target, physicsClientId=cid)))
+        sim.drop_contacts()  # the filters back to normal
+        return out
 
     def _frames(self, w, first: int, total: float, limit: float, terms: np.ndarray, rec, phase_a: bool):
         """Step through frames first.. (stepping into `first` unless it is 0), adding terms.
 
         Returns (status, frame, total): "done", "early" (partial sum below the limit),
-        "rest" (the world came to rest; the rest of the frames added at zero velocity),
-        "contact" (in phase A, the objects touched at `frame`; its term is not added) or
-        "switch" (in phase A, the objects came within reach at `frame`; its term is added)."""
+        "rest" (the world came to rest; the rest of the frames added at zero velocity) or,
+        in phase A, "switch" (the objects came within one frame's reach of each other at
+        `frame`; its term is added). In phase A only the ramp object is simulated; the
+        target's pose and velocities come from `_target_alone` (it is moved there before
+        the distance test, its own simulated state unused)."""
         fast = self.speedups
         cid, bodies = w.cid, w.bodies
         spf, n = self.spf, self.n_frames
         rest_run = 0
         speeds = [math.inf] * len(bodies)
-        step, closest = pb.stepSimulation, pb.getClosestPoints
+        step, closest, get_vel = pb.stepSimulation, pb.getClosestPoints, pb.getBaseVelocity
+        target_alone = self._target_alone
+        radius = self._radius_m
         for f in range(first, n):
             if f:
                 for _ in range(spf):
                     step(physicsClientId=cid)
                 self.steps += spf
-            vel, at_rest = self._read(bodies, cid, speeds)
+            if phase_a:
+                pose_t, twist_t = target_alone[f]
+                twists = [get_vel(bodies[0], physicsClientId=cid), twist_t]
+            else:
+                twists = [get_vel(b, physicsClientId=cid) for b in bodies]
+            vel = [t[0] for t in twists]
+            slow = True  # every object slower than REST_MPS, turning slowly, not speeding up
+            for i, (lin, ang) in enumerate(twists):
+                speed = math.sqrt(lin[0] * lin[0] + lin[1] * lin[1] + lin[2] * lin[2])
+                if slow and (speed >= REST_MPS or speed > speeds[i] + REST_CREEP_MPS
+                             or ang[0] * ang[0] + ang[1] * ang[1] + ang[2] * ang[2] >= REST_RADPS ** 2):
+                    slow = False
+                speeds[i] = speed
             if record := rec is not None:
                 rec[1][:, f] = vel
                 rec[0][:, f] = [pb.getBasePositionAndOrientation(b, physicsClientId=cid)[0] for b in bodies]
-            if phase_a and pb.getContactPoints(bodies[0], bodies[1], physicsClientId=cid):
-                return "contact", f, total
-            rest_run = rest_run + 1 if (f and at_rest) else 0
+                if phase_a:
+                    rec[0][1, f] = pose_t[0]
+            rest_run = rest_run + 1 if (f and slow) else 0
             if rest_run >= 2:  # at rest: this frame and all later ones hold still
                 if record:
                     rec[0][:, f:] = rec[0][:, f:f + 1]
@@ -279,10 +290,14 @@ class VelocityLikelihood:
             if total < limit:
                 return "early", f, total
             if phase_a:
-                (ax, ay, az), (bx, by, bz) = vel
-                speed = math.sqrt(ax * ax + ay * ay + az * az) + math.sqrt(bx * bx + by * by + bz * bz)
-                if closest(bodies[0], bodies[1], speed * self._reach_per_mps + self._reach_const_m,
-                           physicsClientId=cid):
+                # how far the objects could close in on each other within the next frame:
+                # each point moves at most (|v| + |w| r + g dt) dt
+                reach = self._reach_const_m
+                for i, (lin, ang) in enumerate(twists):
+                    reach += (speeds[i] + math.sqrt(ang[0] * ang[0] + ang[1] * ang[1] + ang[2] * ang[2])
+                              * radius[i]) * self._reach_per_mps
+                pb.resetBasePositionAndOrientation(bodies[1], pose_t[0], pose_t[1], physicsClientId=cid)
+                if closest(bodies[0], bodies[1], reach, physicsClientId=cid):
                     return "switch", f, total
         return "done", n - 1, total
 
