@@ -19,6 +19,18 @@ collision (~1e-3 rad/s, 1e-4 m/s); the rule ends those runs. An object on the ve
 sliding (friction within ~2e-4 of tan of the ramp angle) creeps slower than the rule sees
 and counts as at rest: it would move about 3 mm in 2 s.
 
+The model runs in two phases. Phase A, until the objects come within one frame's reach of
+each other (closest distance <= what their speeds, spins and g could close in 1/fps, plus
+SWITCH_MARGIN_M): they cannot interact yet, so the ramp object slides alone with unit mass
+and the target's motion alone (at rest on the ground, with unit mass and friction
+PHASE_A_TARGET_FRICTION) is simulated once per likelihood. Phase B, from the frame after:
+the world restarts from both objects' poses and velocities (`Simulator.resume`: contacts
+start cold) with the proposal's values. Masses and the target's friction change nothing
+before the objects meet (sliding is mass-independent; the target rests), so the world at
+the switch depends on k1 alone. Against one uninterrupted Bullet run, only the cold
+contacts differ (a few millimetres in a collision, the size of Bullet's own solver
+tolerance); tests/test_inference.py checks both.
+
 Exact speed-ups (`speedups=True`; each gives the same accept/reject decisions as the
 plain path, `speedups=False`, which simulates every frame of every proposal):
 
@@ -26,18 +38,10 @@ plain path, `speedups=False`, which simulates every frame of every proposal):
   the final value; the simulation stops once it falls below the MH threshold.
 * at-rest cut-off: once the world is at rest, the remaining frames are known without
   stepping.
-* prefix reuse: before the objects first touch, their masses and the target's friction do
-  not matter (sliding is mass-independent; the target rests on the ground). The model makes
-  this exact: both paths simulate phase A with unit masses and the target's friction at
-  PHASE_A_TARGET_FRICTION until the objects come within reach of each other (closest
-  distance <= what one frame's motion could close, plus SWITCH_MARGIN_M), then restart the
-  world from the objects' poses and velocities there (`Simulator.resume`: contacts start
-  cold), set the proposal's values and go on (phase B). The world at the switch frame
-  then depends only on k1, and any proposal with the same k1 resumes from the same
-  snapshot, with the per-frame terms up to there already summed. (Should the objects touch in
-  phase A all the same, the world is taken back to the frame before and switched there.)
-  Without a switch (no target, or the object stops short of it) the whole result depends
-  only on k1 and is reused whole.
+* prefix reuse: a proposal with the k1 of a recent one (every proposal of m1, m2 and k2)
+  resumes from the snapshot at the switch, with the per-frame terms up to there already
+  summed. Without a switch (no target, or the object stops short of it) the whole result
+  depends only on k1 and is reused whole.
 """
 from __future__ import annotations
 

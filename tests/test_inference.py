@@ -154,12 +154,12 @@ def test_phase_a_values_change_nothing_against_bullet(demo):
 
 
 @pytest.mark.parametrize("in_between", ["other scene", "in-process infer"])
-def test_saved_prefixes_do_not_outlive_their_world(demo, in_between):
-    """The saved prefix states live in the process's physics world. When another scene is
-    simulated the world is rebuilt and they are gone: resuming from their ids failed
-    ("Couldn't restore state") or silently restored another world's state (21 nats off).
-    The likelihood must fall back to a full run. An in-process `infer` on the same scene
-    shares the world (one client per process) and the saved states stay valid."""
+def test_saved_prefixes_survive_a_rebuilt_world(demo, in_between):
+    """Prefixes used to be pybullet saveState ids, which died with the world when another
+    scene was simulated in the process (resuming failed, or silently restored another
+    world's state, 21 nats off). They are snapshots of plain numbers now: after another
+    scene rebuilt the world, or an in-process `infer` on the same scene used it, resuming
+    still gives the plain path's value."""
     import dataclasses
 
     from galileo.physics import Simulator
@@ -172,17 +172,15 @@ def test_saved_prefixes_do_not_outlive_their_world(demo, in_between):
     fast(x0)
     fast(x0 * [1.0, 1.0, 0.8, 1.0])
     assert fast._prefixes[(x0[1],)].snapshot is not None
+    first_b = fast._prefixes[(x0[1],)].first_b
+    spf = int(round(fast.scene.sim_hz / fast.fps))
     if in_between == "other scene":
         Simulator(dataclasses.replace(scene, objects=scene.objects[:1])).run(10)
-        assert fast(x2)[0] == want  # world rebuilt: the prefixes are dropped, a full run
-    else:
-        # same scene, same process: the world (and the saved states in it) is shared and reused
+    else:  # same scene, same process: the world is shared with the chains
         infer(scene, tracks, InferenceConfig(chains=1, sweeps=3, seed=0, workers=1), progress=False)
-        assert fast(x2)[0] == pytest.approx(want, abs=1e-4)
-    # and prefix reuse works again afterwards
-    fast(x0 * [1.0, 1.0, 0.8, 1.0])
-    assert fast._prefixes[(x0[1],)].snapshot is not None
-    assert fast(x2)[0] == pytest.approx(want, abs=1e-4)
+    steps0 = fast.steps
+    assert fast(x2)[0] == want
+    assert fast.steps - steps0 <= spf * (fast.n_frames - first_b)   # resumed, not rerun
 
 
 def test_rest_cutoff_takes_fewer_steps_with_the_same_value(demo):
