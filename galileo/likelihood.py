@@ -19,17 +19,18 @@ collision (~1e-3 rad/s, 1e-4 m/s); the rule ends those runs. An object on the ve
 sliding (friction within ~2e-4 of tan of the ramp angle) creeps slower than the rule sees
 and counts as at rest: it would move about 3 mm in 2 s.
 
-The model runs in two phases. Phase A, until the objects come within one frame's reach of
-each other (closest distance <= what their speeds, spins and g could close in 1/fps, plus
-SWITCH_MARGIN_M): they cannot interact yet, so the ramp object slides alone with unit mass
-and the target's motion alone (at rest on the ground, with unit mass and friction
-PHASE_A_TARGET_FRICTION) is simulated once per likelihood. Phase B, from the frame after:
-the world restarts from both objects' poses and velocities (`Simulator.resume`: contacts
-start cold) with the proposal's values. Masses and the target's friction change nothing
-before the objects meet (sliding is mass-independent; the target rests), so the world at
-the switch depends on k1 alone. Against one uninterrupted Bullet run, only the cold
-contacts differ (a few millimetres in a collision, the size of Bullet's own solver
-tolerance); tests/test_inference.py checks both.
+The model runs in two phases. Phase A, until the objects come within reach of each other
+(closest distance <= what their speeds, spins and g could close in one physics step, plus
+SWITCH_MARGIN_M; tested each frame for one frame's reach, then step by step): they cannot
+interact yet, so the ramp object slides alone with unit mass and the target's motion alone
+(at rest on the ground, with unit mass and friction PHASE_A_TARGET_FRICTION) is simulated
+once per likelihood. Phase B, from that physics step on: the world restarts from both
+objects' poses and velocities (`Simulator.resume`: contacts start cold) with the
+proposal's values. Masses and the target's friction change nothing before the objects
+meet (sliding is mass-independent; the target rests), so the world at the switch depends
+on k1 alone. Against one uninterrupted Bullet run, only the cold contacts differ (a few
+millimetres in a collision, the size of Bullet's own solver tolerance);
+tests/test_inference.py checks both.
 
 Exact speed-ups (`speedups=True`; each gives the same accept/reject decisions as the
 plain path, `speedups=False`, which simulates every frame of every proposal):
@@ -86,7 +87,8 @@ def scene_for_inference(scene: Scene, tracks: Tracks) -> Scene:
 @dataclass
 class _Prefix:
     first_b: int | None                # first frame of phase B (None: no switch, `full` holds the result)
-    snapshot: tuple | None = None      # the objects' poses and velocities at frame first_b - 1
+    snapshot: tuple | None = None      # the objects' poses and velocities where phase A ended:
+    substeps: int = 0                  # ... this many physics steps after frame first_b - 1
     terms: np.ndarray | None = None    # per-frame log-likelihood terms of frames < first_b
     full: float | None = None          # without a switch: the whole sum of terms
 
@@ -118,8 +120,6 @@ class VelocityLikelihood:
         self.spf = int(round(self.scene.sim_hz / self.fps))
         # phase A ends once the objects are closer than one frame's motion could close:
         # |v| / fps + g / fps^2 (if accelerating at up to g) plus a margin
-        self._reach_per_mps = 1.0 / self.fps
-        self._reach_const_m = self.scene.gravity_mps2 / self.fps ** 2 + SWITCH_MARGIN_M
         self._radius_m = [0.5 * float(np.linalg.norm(o.shape.size_m)) for o in self.scene.objects]
         self._target_alone = self._simulate_target_alone() if len(self.scene.objects) == 2 else None
         self._prefixes: OrderedDict[tuple, _Prefix] = OrderedDict()
@@ -192,7 +192,7 @@ class VelocityLikelihood:
                 total = float(prefix.terms.sum())
                 if total < limit:
                     return total, True, None
-                return self._phase_b(values, prefix.first_b, prefix.snapshot, total, limit, rec)
+                return self._phase_b(values, prefix.first_b, prefix.substeps, prefix.snapshot, total, limit, rec)
         w = sim.reset(self._phase_a_values(values))
         two = n_obj == 2
         if two:  # the target takes no part in phase A's simulation: its motion alone is known
@@ -207,39 +207,76 @@ class VelocityLikelihood:
             return total, False, rec
         first_b = f + 1
         total = float(terms[:first_b].sum())
-        pose, twist = self._target_alone[f]
+        substeps = self._refine_switch(w, f)
+        pose, twist = self._target_alone[f * self.spf + substeps]
         snapshot = (sim.snapshot()[0], pose + twist)
         if fast:
-            self._remember(key, _Prefix(first_b, snapshot, terms[:first_b].copy()))
-        return self._phase_b(values, first_b, snapshot, total, limit, rec)
+            self._remember(key, _Prefix(first_b, snapshot, substeps, terms[:first_b].copy()))
+        return self._phase_b(values, first_b, substeps, snapshot, total, limit, rec)
 
-    def _phase_b(self, values: dict, first: int, snapshot: tuple, total: float, limit: float, rec):
+    def _phase_b(self, values: dict, first: int, substeps: int, snapshot: tuple, total: float, limit: float, rec):
         """From frame `first` on, with the proposal's values, the world resumed from the
-        snapshot of frame first - 1."""
+        snapshot taken `substeps` physics steps after frame first - 1."""
         w = self.sim.resume(snapshot, values)
         terms = np.zeros(self.n_frames)
-        status, _, total = self._frames(w, first, total, limit, terms, rec, phase_a=False)
+        status, _, total = self._frames(w, first, total, limit, terms, rec, phase_a=False, substeps_done=substeps)
         return total, status == "early", rec
 
+    def _reach_m(self, twists, dt: float) -> float:
+        """How far the objects could close in on each other within dt: each point moves at
+        most (|v| + |w| r + g dt) dt; plus SWITCH_MARGIN_M (Bullet's speculative contacts act
+        a step ahead)."""
+        reach = self.scene.gravity_mps2 * dt * dt + SWITCH_MARGIN_M
+        for (lin, ang), r in zip(twists, self._radius_m):
+            reach += (math.sqrt(lin[0] * lin[0] + lin[1] * lin[1] + lin[2] * lin[2])
+                      + math.sqrt(ang[0] * ang[0] + ang[1] * ang[1] + ang[2] * ang[2]) * r) * dt
+        return reach
+
+    def _within(self, w, twists, k: int, dt: float) -> bool:
+        """Whether the objects are within `_reach_m(dt)` of each other at physics step k
+        (the target moved to where it is alone at step k first)."""
+        cid, (ramp_object, target) = w.cid, w.bodies
+        pos, orn = self._target_alone[k][0]
+        pb.resetBasePositionAndOrientation(target, pos, orn, physicsClientId=cid)
+        return bool(pb.getClosestPoints(ramp_object, target, self._reach_m(twists, dt), physicsClientId=cid))
+
+    def _refine_switch(self, w, f: int) -> int:
+        """Phase A reached frame f within one frame's reach: step on one physics step at a
+        time while the objects stay out of one step's reach (at most spf - 1 steps).
+        Returns the steps taken; the world is then where phase A ends."""
+        cid, spf = w.cid, self.spf
+        dt = 1.0 / self.scene.sim_hz
+        j = 0
+        while j < spf - 1:
+            k = f * spf + j
+            twists = [pb.getBaseVelocity(w.bodies[0], physicsClientId=cid), self._target_alone[k][1]]
+            if self._within(w, twists, k, dt):
+                break
+            pb.stepSimulation(physicsClientId=cid)
+            self.steps += 1
+            j += 1
+        return j
+
     def _simulate_target_alone(self) -> list:
-        """Per frame, the target's ((position, orientation), (linear, angular velocity)) when
-        it is simulated alone with phase A's values (the ramp object takes no part)."""
+        """Per physics step (frame f is step f * spf), the target's ((position, orientation),
+        (linear, angular velocity)) when it is simulated alone with phase A's values (the
+        ramp object takes no part)."""
         sim = self.sim
         values = self._phase_a_values({n: 0.5 for n in self.names})
         w = sim.reset(values)
         cid, target = w.cid, w.bodies[1]
         pb.setCollisionFilterGroupMask(w.bodies[0], -1, 0, 0, physicsClientId=cid)
         out = []
-        for f in range(self.n_frames):
-            if f:
-                for _ in range(self.spf):
-                    pb.stepSimulation(physicsClientId=cid)
+        for k in range((self.n_frames - 1) * self.spf + 1):
+            if k:
+                pb.stepSimulation(physicsClientId=cid)
             out.append((pb.getBasePositionAndOrientation(target, physicsClientId=cid),
                         pb.getBaseVelocity(target, physicsClientId=cid)))
         sim.drop_contacts()  # the filters back to normal
         return out
 
-    def _frames(self, w, first: int, total: float, limit: float, terms: np.ndarray, rec, phase_a: bool):
+    def _frames(self, w, first: int, total: float, limit: float, terms: np.ndarray, rec, phase_a: bool,
+                substeps_done: int = 0):
         """Step through frames first.. (stepping into `first` unless it is 0), adding terms.
 
         Returns (status, frame, total): "done", "early" (partial sum below the limit),
@@ -247,23 +284,24 @@ class VelocityLikelihood:
         in phase A, "switch" (the objects came within one frame's reach of each other at
         `frame`; its term is added). In phase A only the ramp object is simulated; the
         target's pose and velocities come from `_target_alone` (it is moved there before
-        the distance test, its own simulated state unused)."""
+        the distance test, its own simulated state unused). `substeps_done`: physics steps
+        already taken into frame `first`."""
         fast = self.speedups
         cid, bodies = w.cid, w.bodies
         spf, n = self.spf, self.n_frames
         rest_run = 0
         speeds = [math.inf] * len(bodies)
-        step, closest, get_vel = pb.stepSimulation, pb.getClosestPoints, pb.getBaseVelocity
+        step, get_vel = pb.stepSimulation, pb.getBaseVelocity
         target_alone = self._target_alone
-        radius = self._radius_m
+        frame_dt = 1.0 / self.fps
         for f in range(first, n):
             if f:
-                for _ in range(spf):
+                todo = spf - substeps_done if f == first else spf
+                for _ in range(todo):
                     step(physicsClientId=cid)
-                self.steps += spf
+                self.steps += todo
             if phase_a:
-                pose_t, twist_t = target_alone[f]
-                twists = [get_vel(bodies[0], physicsClientId=cid), twist_t]
+                twists = [get_vel(bodies[0], physicsClientId=cid), target_alone[f * spf][1]]
             else:
                 twists = [get_vel(b, physicsClientId=cid) for b in bodies]
             vel = [t[0] for t in twists]
@@ -278,7 +316,7 @@ class VelocityLikelihood:
                 rec[1][:, f] = vel
                 rec[0][:, f] = [pb.getBasePositionAndOrientation(b, physicsClientId=cid)[0] for b in bodies]
                 if phase_a:
-                    rec[0][1, f] = pose_t[0]
+                    rec[0][1, f] = target_alone[f * spf][0][0]
             rest_run = rest_run + 1 if (f and slow) else 0
             if rest_run >= 2:  # at rest: this frame and all later ones hold still
                 if record:
@@ -293,16 +331,8 @@ class VelocityLikelihood:
             total += term
             if total < limit:
                 return "early", f, total
-            if phase_a:
-                # how far the objects could close in on each other within the next frame:
-                # each point moves at most (|v| + |w| r + g dt) dt
-                reach = self._reach_const_m
-                for i, (lin, ang) in enumerate(twists):
-                    reach += (speeds[i] + math.sqrt(ang[0] * ang[0] + ang[1] * ang[1] + ang[2] * ang[2])
-                              * radius[i]) * self._reach_per_mps
-                pb.resetBasePositionAndOrientation(bodies[1], pose_t[0], pose_t[1], physicsClientId=cid)
-                if closest(bodies[0], bodies[1], reach, physicsClientId=cid):
-                    return "switch", f, total
+            if phase_a and f < n - 1 and self._within(w, twists, f * spf, frame_dt):
+                return "switch", f, total
         return "done", n - 1, total
 
     def _remember(self, key: tuple, entry: _Prefix) -> None:

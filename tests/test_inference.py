@@ -123,34 +123,54 @@ def test_prefix_reuse_equals_a_full_simulation(demo):
     assert pos_p[1, -1, 0] - pos_p[1, 0, 0] > 0.01
 
 
+def _bullet_run(scene, values, n_frames, spf, drop_at_step=None):
+    """One uninterrupted Bullet run of the scene with `values` from t = 0 (contacts dropped
+    after step `drop_at_step`, if given): per frame, positions and velocities (O, F, 3)."""
+    from galileo.bullet import pb
+    from galileo.physics import Simulator
+
+    sim = Simulator(scene)
+    w = sim.reset(values)
+    pos, vel = np.empty((2, len(w.bodies), n_frames, 3))
+    for k in range((n_frames - 1) * spf + 1):
+        if k:
+            pb.stepSimulation(physicsClientId=w.cid)
+        if k == drop_at_step:
+            sim.drop_contacts()
+        if k % spf == 0:
+            for i, b in enumerate(w.bodies):
+                pos[i, k // spf] = pb.getBasePositionAndOrientation(b, physicsClientId=w.cid)[0]
+                vel[i, k // spf] = pb.getBaseVelocity(b, physicsClientId=w.cid)[0]
+    return pos, vel
+
+
 def test_phase_a_values_change_nothing_against_bullet(demo):
     """Independent of the likelihood's bookkeeping: an uninterrupted Bullet run with the
     proposal's own masses and target friction from t = 0, whose contacts are dropped at the
-    same frame, gives the likelihood's motion (phase A's unit masses and fixed target
-    friction change nothing before the objects touch but the last bits of rounding). Without
-    the drop, the cold contact restart is all that differs: a few millimetres at most, the
-    size of Bullet's own solver tolerance (10 against 5 iterations moves this run by ~1 mm).
+    physics step where phase A ended, gives the likelihood's motion (phase A's separate
+    objects, unit masses and fixed target friction change nothing before the objects meet
+    but the last bits of rounding). Without the drop, the cold contact restart is all that
+    differs: a few millimetres at most, the size of Bullet's own solver tolerance (10
+    against 5 iterations moves this run by ~1 mm).
     (Collisions can amplify last-bit differences: in one of nine random proposals around the
     truth they grew to 4 mm. These two latent vectors are not such cases.)"""
-    from galileo.physics import Simulator
-
     scene, tracks, x0 = demo
     plain = VelocityLikelihood(scene, tracks, speedups=False)
     fast = VelocityLikelihood(scene, tracks, speedups=True)
+    spf = plain.spf
     for x in (x0, x0 * [2.0, 0.9, 0.5, 1.5]):
         pos_l, vel_l = plain.simulated_motion(x)
         fast(x)
-        switch = fast._prefixes[(x[1],)].first_b - 1
-        sim = Simulator(plain.scene)
+        prefix = fast._prefixes[(x[1],)]
+        switch_step = (prefix.first_b - 1) * spf + prefix.substeps
         values = plain.values_of(x)
-        dropped = sim.run(plain.n_frames, values,
-                          on_frame=lambda f, p, v: (sim.drop_contacts() if f == switch else None) and False)
+        pos_d, vel_d = _bullet_run(plain.scene, values, plain.n_frames, spf, drop_at_step=switch_step)
         still = np.all(vel_l == 0.0, axis=(0, 2))  # frames the rest rule holds still
-        assert np.abs(dropped.position_m[:, ~still] - pos_l[:, ~still]).max() < 1e-6
-        assert np.abs(dropped.velocity_mps[:, ~still] - vel_l[:, ~still]).max() < 1e-4  # sigma / 500
-        assert np.abs(dropped.position_m - pos_l).max() < 5e-4   # rest rule: holds within 0.5 mm
-        uninterrupted = sim.run(plain.n_frames, values)
-        assert np.abs(uninterrupted.position_m - pos_l).max() < 3e-3
+        assert np.abs(pos_d[:, ~still] - pos_l[:, ~still]).max() < 1e-5   # 10 um: rounding, amplified
+        assert np.abs(vel_d[:, ~still] - vel_l[:, ~still]).max() < 1e-4  # sigma / 500
+        assert np.abs(pos_d - pos_l).max() < 5e-4   # rest rule: holds within 0.5 mm
+        pos_u, _ = _bullet_run(plain.scene, values, plain.n_frames, spf)
+        assert np.abs(pos_u - pos_l).max() < 3e-3
 
 
 @pytest.mark.parametrize("in_between", ["other scene", "in-process infer"])
