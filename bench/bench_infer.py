@@ -2,7 +2,7 @@
 
 Usage (from the repository root):
     python bench/bench_infer.py [--video V --scene S [--tracks T]] [--chains 16] [--sweeps 75]
-                                [--seed 0] [--workers N] [--json]
+                                [--seed 0] [--workers N] [--repeat 3] [--json]
 
 Without --video it renders the demo preset into a temporary folder first; without --tracks
 it tracks the video (tracking time is reported but not part of the inference times).
@@ -12,7 +12,9 @@ Both runs use the same scene, tracks, seed and chains, in this process:
 * default: speedups=True (early rejection, at-rest cut-off, prefix reuse), all cores
            (or --workers).
 
-Wall times are of `galileo.inference.infer` (process start-up of the workers included).
+Wall times are of `galileo.inference.infer` (process start-up of the workers included);
+the two runs alternate --repeat times and the medians are compared (this VM's speed drifts
+by up to 30% between identical runs; the range is printed too).
 Physics steps are the stepSimulation calls of all chains. Also reported: whether the two
 runs made the same decisions (they should: the speed-ups are exact up to rounding).
 Targets: default <= 2 s per video, and >= 10x faster than naive.
@@ -49,10 +51,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sweeps", type=int, default=75, help="sweeps per chain (default 75, the paper's)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=None, help="workers of the default run (default: all cores)")
+    ap.add_argument("--repeat", type=int, default=3, help="runs of each path, alternating (default 3; medians)")
     ap.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     args = ap.parse_args(argv)
-    if args.chains < 1 or args.sweeps < 1:
-        ap.error("--chains and --sweeps must be >= 1")
+    if args.chains < 1 or args.sweeps < 1 or args.repeat < 1:
+        ap.error("--chains, --sweeps and --repeat must be >= 1")
     if bool(args.video) != bool(args.scene):
         ap.error("--video and --scene go together")
     if args.tracks and not args.video:
@@ -75,10 +78,14 @@ def main(argv: list[str] | None = None) -> int:
     track_s = time.perf_counter() - t0
 
     base = dict(chains=args.chains, sweeps=args.sweeps, seed=args.seed)
-    naive = infer(scene, tracks, InferenceConfig(speedups=False, workers=1, **base), progress=False)
-    default = infer(scene, tracks, InferenceConfig(speedups=True, workers=args.workers, **base), progress=False)
+    walls_naive, walls_default = [], []
+    for _ in range(args.repeat):
+        naive = infer(scene, tracks, InferenceConfig(speedups=False, workers=1, **base), progress=False)
+        default = infer(scene, tracks, InferenceConfig(speedups=True, workers=args.workers, **base), progress=False)
+        walls_naive.append(naive.timing_s["wall"])
+        walls_default.append(default.timing_s["wall"])
 
-    t_naive, t_default = naive.timing_s["wall"], default.timing_s["wall"]
+    t_naive, t_default = float(np.median(walls_naive)), float(np.median(walls_default))
     speedup = t_naive / t_default
     same = bool(np.array_equal(naive.samples, default.samples)
                 and np.array_equal(naive.proposals["accepted"], default.proposals["accepted"]))
@@ -86,9 +93,10 @@ def main(argv: list[str] | None = None) -> int:
         "video": str(source), "n_frames": tracks.n_frames, "latents": list(default.names),
         "chains": args.chains, "sweeps": args.sweeps, "seed": args.seed,
         "proposals": int(default.proposals["accepted"].size),
-        "naive": {"wall_s": t_naive, "physics_steps": naive.steps, "workers": naive.timing_s["workers"],
+        "repeat": args.repeat,
+        "naive": {"wall_s": t_naive, "wall_s_runs": walls_naive, "physics_steps": naive.steps, "workers": naive.timing_s["workers"],
                   "chains_cpu_s": naive.timing_s["chains_cpu"], "map": naive.map, "map_loglik": naive.map_loglik},
-        "default": {"wall_s": t_default, "physics_steps": default.steps, "workers": default.timing_s["workers"],
+        "default": {"wall_s": t_default, "wall_s_runs": walls_default, "physics_steps": default.steps, "workers": default.timing_s["workers"],
                     "chains_cpu_s": default.timing_s["chains_cpu"], "map": default.map,
                     "map_loglik": default.map_loglik,
                     "early_stopped": float(default.proposals["early_stop"].mean())},
@@ -113,9 +121,13 @@ def main(argv: list[str] | None = None) -> int:
     print(f"video: {source}, {tracks.n_frames} frames; {args.chains} chains x {args.sweeps} sweeps x "
           f"{len(default.names)} latents = {result['proposals']} proposals, seed {args.seed}; "
           f"{os.cpu_count()} cores" + (f"; tracking {track_s:.2f} s (not counted)" if not args.tracks else ""))
-    print(f"naive   (no speed-ups, 1 worker)    : {t_naive:7.2f} s  {naive.steps:>10,d} physics steps  "
+    def spread(walls):
+        return f" (runs {min(walls):.2f}-{max(walls):.2f})" if len(walls) > 1 else ""
+
+    print(f"wall times: median of {args.repeat} alternating run(s) of each path")
+    print(f"naive   (no speed-ups, 1 worker)    : {t_naive:7.2f} s{spread(walls_naive)}  {naive.steps:>10,d} physics steps  "
           f"(chain CPU {naive.timing_s['chains_cpu']:.2f} s)")
-    print(f"default (speed-ups, {default.timing_s['workers']:>2d} worker(s))   : {t_default:7.2f} s  "
+    print(f"default (speed-ups, {default.timing_s['workers']:>2d} worker(s))   : {t_default:7.2f} s{spread(walls_default)}  "
           f"{default.steps:>10,d} physics steps  (chain CPU {default.timing_s['chains_cpu']:.2f} s; "
           f"{100 * result['default']['early_stopped']:.0f}% of proposals stopped early)")
     print(f"speed-up: {speedup:.1f}x wall (target >= {TARGET_SPEEDUP:g}x: {ok(result['ok_speedup'])}), "
