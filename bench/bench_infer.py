@@ -139,4 +139,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from galileo.errors import GalileoError
+
+    try:
+        sys.exit(main())
+    except GalileoError as e:  # bad input: one line, exit 2 (as the CLI does)
+        print(f"{Path(sys.argv[0]).name}: error: {e}", file=sys.stderr)
+        sys.exit(2)
