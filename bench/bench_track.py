@@ -96,10 +96,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    from galileo.errors import GalileoError
+    from galileo.errors import run_reporting_errors
 
-    try:
-        sys.exit(main())
-    except GalileoError as e:  # bad input: one line, exit 2 (as the CLI does)
-        print(f"{Path(sys.argv[0]).name}: error: {e}", file=sys.stderr)
-        sys.exit(2)
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

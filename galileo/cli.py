@@ -6,10 +6,9 @@ with code 2; no traceback.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-from .errors import GalileoError
+from .errors import GalileoError, run_reporting_errors
 
 
 def _parse_set(items: list[str]) -> dict[str, float]:
@@ -221,15 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except GalileoError as e:
-        msg = " ".join(str(e).split("\n"))
-        print(f"galileo: error: {msg}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("galileo: interrupted", file=sys.stderr)
-        return 130
+    return run_reporting_errors("galileo", lambda: args.func(args))
 
 
 if __name__ == "__main__":

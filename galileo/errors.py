@@ -7,3 +7,19 @@ class GalileoError(Exception):
 
 class SceneError(GalileoError):
     """A scene file that is missing, malformed or physically impossible."""
+
+
+def run_reporting_errors(prog: str, fn) -> int:
+    """`fn()`'s exit code; a GalileoError becomes one line on stderr and exit code 2, Ctrl-C
+    exit code 130 (for the CLI and the bench scripts)."""
+    import sys
+
+    try:
+        return int(fn() or 0)
+    except GalileoError as e:
+        msg = " ".join(str(e).split("\n"))
+        print(f"{prog}: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130

@@ -114,12 +114,14 @@ class VelocityLikelihood:
         self._obs = [[(i, float(self.v_obs[i, f, 0]), float(self.v_obs[i, f, 1]))
                       for i in range(len(order)) if self.seen[i, f]] for f in range(self.n_frames)]
         self._half_prec = -0.5 / self.sigma_mps ** 2
+        # the rest rule's sums of the terms of frames f.. at zero velocity, f = 0..F
+        d2 = (self.v_obs ** 2).sum(axis=2) * self.seen
+        self._rest_terms = [float(self._half_prec * d2[:, f:].sum()) for f in range(self.n_frames + 1)]
         n_terms = 2 * self.seen.sum()
         self.log_norm = -n_terms * math.log(self.sigma_mps * math.sqrt(2 * math.pi))
         self.sim = Simulator(self.scene)
         self.spf = int(round(self.scene.sim_hz / self.fps))
-        # phase A ends once the objects are closer than one frame's motion could close:
-        # |v| / fps + g / fps^2 (if accelerating at up to g) plus a margin
+        # each object's farthest surface point from its centre (a bound for `_reach_m`)
         self._radius_m = [0.5 * float(np.linalg.norm(o.shape.size_m)) for o in self.scene.objects]
         self._target_alone = self._simulate_target_alone() if len(self.scene.objects) == 2 else None
         self._prefixes: OrderedDict[tuple, _Prefix] = OrderedDict()
@@ -142,10 +144,7 @@ class VelocityLikelihood:
 
     def _rest_term(self, f0: int) -> float:
         """Sum of the terms of frames f0.. with zero simulated velocity."""
-        if f0 >= self.n_frames:
-            return 0.0
-        d = self.v_obs[:, f0:]
-        return float(-0.5 * np.sum((d * d).sum(axis=2) * self.seen[:, f0:]) / self.sigma_mps ** 2)
+        return self._rest_terms[f0]
 
     def _phase_a_values(self, values: dict) -> dict:
         """The proposal's values as phase A uses them: unit masses, the target's friction fixed."""
@@ -218,8 +217,7 @@ class VelocityLikelihood:
         """From frame `first` on, with the proposal's values, the world resumed from the
         snapshot taken `substeps` physics steps after frame first - 1."""
         w = self.sim.resume(snapshot, values)
-        terms = np.zeros(self.n_frames)
-        status, _, total = self._frames(w, first, total, limit, terms, rec, phase_a=False, substeps_done=substeps)
+        status, _, total = self._frames(w, first, total, limit, None, rec, phase_a=False, substeps_done=substeps)
         return total, status == "early", rec
 
     def _reach_m(self, twists, dt: float) -> float:
@@ -262,7 +260,7 @@ class VelocityLikelihood:
         (linear, angular velocity)) when it is simulated alone with phase A's values (the
         ramp object takes no part)."""
         sim = self.sim
-        values = self._phase_a_values({n: 0.5 for n in self.names})
+        values = self._phase_a_values({n: 0.5 for n in self.names})  # (k1 is moot: the ramp object is masked)
         w = sim.reset(values)
         cid, target = w.cid, w.bodies[1]
         pb.setCollisionFilterGroupMask(w.bodies[0], -1, 0, 0, physicsClientId=cid)
@@ -275,17 +273,17 @@ class VelocityLikelihood:
         sim.drop_contacts()  # the filters back to normal
         return out
 
-    def _frames(self, w, first: int, total: float, limit: float, terms: np.ndarray, rec, phase_a: bool,
+    def _frames(self, w, first: int, total: float, limit: float, terms: np.ndarray | None, rec, phase_a: bool,
                 substeps_done: int = 0):
         """Step through frames first.. (stepping into `first` unless it is 0), adding terms.
 
         Returns (status, frame, total): "done", "early" (partial sum below the limit),
         "rest" (the world came to rest; the rest of the frames added at zero velocity) or,
         in phase A, "switch" (the objects came within one frame's reach of each other at
-        `frame`; its term is added). In phase A only the ramp object is simulated; the
-        target's pose and velocities come from `_target_alone` (it is moved there before
-        the distance test, its own simulated state unused). `substeps_done`: physics steps
-        already taken into frame `first`."""
+        `frame`; its term is added). Per-frame terms go into `terms` unless it is None.
+        In phase A only the ramp object is simulated; the target's pose and velocities come
+        from `_target_alone` (it is moved there before the distance test, its own simulated
+        state unused). `substeps_done`: physics steps already taken into frame `first`."""
         fast = self.speedups
         cid, bodies = w.cid, w.bodies
         spf, n = self.spf, self.n_frames
@@ -327,7 +325,9 @@ class VelocityLikelihood:
                         step(physicsClientId=cid)
                     self.steps += spf * (n - 1 - f)
                 return "rest", f, total + self._rest_term(f)
-            terms[f] = term = self._frame_term(f, vel)
+            term = self._frame_term(f, vel)
+            if terms is not None:
+                terms[f] = term
             total += term
             if total < limit:
                 return "early", f, total
