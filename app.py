@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import signal
-import sys
 import threading
 from pathlib import Path
 
@@ -51,8 +50,10 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def _rerun_mode(args) -> tuple[str, str | None]:
+    from ui.rerun_log import MODES
+
     mode = args.rerun[0]
-    if mode not in ("off", "save", "web", "connect"):
+    if mode not in MODES:
         raise SystemExit(f"app: error: --rerun must be off, save, web or connect URL, not {mode!r}")
     url = args.rerun[1] if len(args.rerun) > 1 else None
     if mode == "connect" and not url:
@@ -62,25 +63,21 @@ def _rerun_mode(args) -> tuple[str, str | None]:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    from galileo.errors import GalileoError
+    from galileo.errors import run_reporting_errors
 
-    try:
-        return run(args)
-    except GalileoError as e:
-        print(f"app: error: {' '.join(str(e).split())}", file=sys.stderr)
-        return 2
+    return run_reporting_errors("app", lambda: run(args))
 
 
 def run(args) -> int:
     import numpy as np
 
     from galileo.errors import GalileoError
-    from galileo.jsonio import write_json
+    from galileo.inference import burn_in
     from galileo.scene import Scene
     from galileo.tracking import track
     from galileo.video import read_video
-    from ui.controller import Controller, Settings
-    from ui.rerun_log import RerunLogger
+    from ui.controller import Controller
+    from ui.rerun_log import RRD_NAME, RerunLogger
     from ui.session import new_session_dir
     from ui.viewer import Viewer
 
@@ -109,12 +106,11 @@ def run(args) -> int:
         import shutil
 
         shutil.copyfile(video_path, session / "video.mp4")
-        write_json(session / "scene.json", scene.to_json())
-        bounds = {n: tuple(scene.priors.bounds[n]) for n in scene.latent_names}
+        # (the controller writes scene.json and tracks.json into the session; bounds: the priors')
         ctrl = Controller(scene, tracks, chains=args.chains, seed=args.seed, workers=args.workers,
-                          settings=Settings(bounds=bounds), session_dir=session)
+                          session_dir=session)
     video, _ = read_video(video_path)
-    old_rrd = session / "session.rrd"
+    old_rrd = session / RRD_NAME
     if mode != "off" and old_rrd.exists():  # keep the earlier run's recording
         import time as _time
 
@@ -136,23 +132,20 @@ def run(args) -> int:
                 logger.log_sweep(chain, sweep, loglik, values)
                 if sweep == args.sweeps and chain in active:
                     ctrl.pause(chain)  # the paper's protocol: 75 sweeps a chain; resume to go on
-            on_controller.rounds += 1
-            if on_controller.rounds % posterior_every == 0:
+            if payload["round"] % posterior_every == 0:
                 samples = [ctrl.samples(c) for c in ctrl.chain_ids()]
-                kept = [s[len(s) // 2:] for s in samples if len(s)]
+                kept = [s[burn_in(len(s)):] for s in samples if len(s)]
                 if kept:
                     logger.log_posterior(names, np.concatenate(kept), ctrl.settings.bounds)
         elif kind == "event":
             logger.log_event(payload["sweep"], f"{payload['kind']}: {payload['detail']}")
-    on_controller.rounds = 0
     ctrl.add_listener(on_controller)
 
     viewer = Viewer(ctrl, ctrl.likelihood_scene, tracks, video, host=args.host, port=args.port,
                     target_sweeps=args.sweeps)
-    if viewer.traj is not None:
-        logger.log_simulation(viewer.traj)
+    logger.log_simulation(viewer.traj)
     print(f"viewer: {viewer.url}")
-    if getattr(logger, "web_url", None):
+    if logger.web_url:
         print(f"rerun web viewer: {logger.web_url}")
     print(f"session: {session}  (Ctrl-C to stop; the session is saved as it goes)")
     ctrl.start()

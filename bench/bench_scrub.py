@@ -50,7 +50,7 @@ def main() -> int:
         times = []
         for _ in range(args.samples):
             chain = int(rng.choice(ctrl.chain_ids()))
-            times.append(viewer.select_sample(chain, int(rng.integers(len(ctrl.samples(chain))))))
+            times.append(viewer.select_sample(chain, int(rng.integers(len(ctrl.samples(chain)))), force=True))
         viewer.close()
         ctrl.close()
     ms = np.array(times) * 1e3

@@ -87,15 +87,15 @@ def cmd_infer(args: argparse.Namespace) -> int:
     from .scene import Scene
     from .tracking import Tracks, track
 
+    if args.chains < 1 or args.sweeps < 1:  # before tracking, which takes a while
+        raise GalileoError("--chains and --sweeps must be at least 1")
+    if args.sigma <= 0:
+        raise GalileoError("--sigma must be positive")
     scene = Scene.load(args.scene)
     if args.tracks:
         tracks = Tracks.load(args.tracks)
     else:
         tracks = track(args.video, scene, progress=not args.quiet)
-    if args.chains < 1 or args.sweeps < 1:
-        raise GalileoError("--chains and --sweeps must be at least 1")
-    if args.sigma <= 0:
-        raise GalileoError("--sigma must be positive")
     cfg = InferenceConfig(chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=args.workers,
                           sigma_mps=args.sigma, speedups=not args.no_speedups,
                           proposal=Proposal(args.narrow, args.broad, args.broad_every))

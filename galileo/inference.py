@@ -29,6 +29,11 @@ from .tracking import Tracks
 BURN_IN_FRACTION = 0.5  # posterior summaries and R-hat/ESS use the second half of each chain
 
 
+def burn_in(n_sweeps: int) -> int:
+    """Sweeps dropped from the start of a chain of `n_sweeps` before summarising it."""
+    return int(n_sweeps * BURN_IN_FRACTION)
+
+
 @dataclass
 class InferenceConfig:
     chains: int = 16
@@ -109,7 +114,7 @@ class InferenceResult:
         return float(self.logliks.max())
 
     def kept(self) -> np.ndarray:
-        burn = int(self.samples.shape[1] * BURN_IN_FRACTION)
+        burn = burn_in(self.samples.shape[1])
         return self.samples[:, burn:]
 
     def posterior(self) -> dict[str, dict]:
@@ -143,7 +148,7 @@ class InferenceResult:
         early = self.proposals["early_stop"]
         return {"r_hat": r_hat, "ess": ess, "acceptance": acc, "acceptance_all": float(accepted.mean()),
                 "early_stopped": float(early.mean()), "physics_steps": int(self.steps),
-                "burn_in_sweeps": int(self.samples.shape[1] * BURN_IN_FRACTION)}
+                "burn_in_sweeps": burn_in(self.samples.shape[1])}
 
     def mass_ratio(self) -> float | None:
         m = self.map

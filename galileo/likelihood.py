@@ -69,7 +69,10 @@ SWITCH_MARGIN_M = 0.01          # phase A ends this much before one frame's reac
 
 
 def scene_for_inference(scene: Scene, tracks: Tracks) -> Scene:
-    """The scene with the shapes and offset that tracking measured (fixed during MCMC)."""
+    """The scene with the shapes and offset that tracking measured (fixed during MCMC);
+    checks that the tracks fit the scene (frame rate, objects)."""
+    if scene.camera is not None and tracks.fps != scene.camera.fps:
+        raise GalileoError(f"tracks at {tracks.fps} fps but the scene camera at {scene.camera.fps} fps")
     objs = list(scene.objects)
     for i, obj in enumerate(objs):
         tr = next((t for t in tracks.objects if t.role == obj.role), None)
@@ -98,8 +101,6 @@ class VelocityLikelihood:
 
     def __init__(self, scene: Scene, tracks: Tracks, sigma_mps: float = SIGMA_MPS, speedups: bool = True,
                  cache_size: int = 4):
-        if tracks.fps != (scene.camera.fps if scene.camera else tracks.fps):
-            raise GalileoError(f"tracks at {tracks.fps} fps but the scene camera at {scene.camera.fps} fps")
         self.scene = scene_for_inference(scene, tracks)
         self.names = self.scene.latent_names
         self.fps = tracks.fps
@@ -127,7 +128,6 @@ class VelocityLikelihood:
         self._prefixes: OrderedDict[tuple, _Prefix] = OrderedDict()
         self._cache_size = cache_size
         self.steps = 0          # physics steps taken (for benchmarks)
-        self.evaluations = 0
 
     # -- pieces --------------------------------------------------------------------------
     def values_of(self, position) -> dict[str, float]:
@@ -160,7 +160,6 @@ class VelocityLikelihood:
     def __call__(self, position, threshold: float | None = None):
         """(log-likelihood, stopped_early). With a threshold and speed-ups, may stop early and
         return an upper bound below the threshold."""
-        self.evaluations += 1
         values = self.values_of(position)
         limit = -math.inf if (threshold is None or not self.speedups) else threshold - self.log_norm
         total, early, _ = self._evaluate(values, limit)

@@ -16,8 +16,8 @@ contacts, so a reused world reproduces a freshly built one bit for bit.
 """
 from __future__ import annotations
 
-import atexit
 import math
+import multiprocessing.util as mp_util
 import os
 import shutil
 import tempfile
@@ -115,7 +115,10 @@ def _scratch_dir() -> Path:
     if _mesh_dir is None or _mesh_dir_pid != os.getpid():
         _mesh_dir = Path(tempfile.mkdtemp(prefix="galileo-meshes-"))
         _mesh_dir_pid = os.getpid()
-        atexit.register(shutil.rmtree, _mesh_dir, ignore_errors=True)
+        # (atexit handlers do not run in multiprocessing's forked workers; its finalizers do,
+        # in the parent too, and a child drops the ones it inherited)
+        mp_util.Finalize(None, shutil.rmtree, args=(str(_mesh_dir),), kwargs={"ignore_errors": True},
+                         exitpriority=0)
     return _mesh_dir
 
 
@@ -205,7 +208,6 @@ class Simulator:
         self.scene = scene
         self.visual = visual
         self._world: _World | None = None
-        self.steps_per_frame: int | None = None
 
     @property
     def world(self) -> _World:
@@ -328,8 +330,3 @@ class Simulator:
         """Current (position, orientation) of each object (for renderers)."""
         w = self._world or self.world
         return [pb.getBasePositionAndOrientation(b, physicsClientId=w.cid) for b in w.bodies]
-
-
-def simulate(scene: Scene, n_frames: int, values: dict[str, float] | None = None,
-             fps: float | None = None) -> Trajectory:
-    return Simulator(scene).run(n_frames, values, fps)

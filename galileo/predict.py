@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import GalileoError
-from .inference import BURN_IN_FRACTION, load_samples
+from .inference import burn_in, load_samples
 from .jsonio import read_json
 from .physics import Simulator
 from .scene import Scene, scene_from_json
@@ -20,6 +20,17 @@ from .scene import Scene, scene_from_json
 MOVE_THRESHOLD_M = 0.01   # "it moves": its centre travels more than this in MOVE_WINDOW_S
 MOVE_WINDOW_S = 2.0
 SETTLE_S = 4.0            # time allowed for the target to come to rest
+
+
+def slides(scene: Scene, values: dict[str, float], threshold_m: float = MOVE_THRESHOLD_M,
+           sim: Simulator | None = None) -> bool:
+    """Whether the ramp object of `scene`, alone (any target removed), moves its centre more
+    than `threshold_m` in MOVE_WINDOW_S with `values` (m1_kg, k1)."""
+    fps = 30.0
+    if sim is None:
+        sim = Simulator(dataclasses.replace(scene, objects=scene.objects[:1]))
+    t = sim.run(int(MOVE_WINDOW_S * fps) + 1, {k: v for k, v in values.items() if k in ("m1_kg", "k1")}, fps=fps)
+    return bool(np.linalg.norm(t.position_m[0, -1] - t.position_m[0, 0]) > threshold_m)
 
 
 class Prediction:
@@ -39,7 +50,7 @@ class Prediction:
         if samples_file is not None and samples_file.exists():
             rec = load_samples(samples_file)
             s = rec["samples"]
-            kept = s[:, int(s.shape[1] * BURN_IN_FRACTION):].reshape(-1, s.shape[2])
+            kept = s[:, burn_in(s.shape[1]):].reshape(-1, s.shape[2])
             idx = np.linspace(0, len(kept) - 1, min(max_samples, len(kept))).astype(int)
             self.samples = kept[idx]
 
@@ -49,16 +60,10 @@ class Prediction:
     def will_it_move(self, angle_deg: float) -> dict:
         """Does the ramp object slide on a ramp of `angle_deg` (target removed)?"""
         scene = dataclasses.replace(self.scene.with_values({"angle_deg": angle_deg}), objects=self.scene.objects[:1])
-        fps = 30.0
-        n = int(MOVE_WINDOW_S * fps) + 1
         sim = Simulator(scene)
-
-        def moves(values) -> bool:
-            t = sim.run(n, {k: v for k, v in values.items() if k in ("m1_kg", "k1")}, fps=fps)
-            return bool(np.linalg.norm(t.position_m[0, -1] - t.position_m[0, 0]) > MOVE_THRESHOLD_M)
-
-        answer = moves(self.map)
-        share = float(np.mean([moves(self._values(r)) for r in self.samples])) if len(self.samples) else None
+        answer = slides(scene, self.map, sim=sim)
+        share = (float(np.mean([slides(scene, self._values(r), sim=sim) for r in self.samples]))
+                 if len(self.samples) else None)
         return {"angle_deg": angle_deg, "moves": answer, "posterior_share_moving": share,
                 "k1_map": self.map["k1"], "tan_angle": float(np.tan(np.radians(angle_deg)))}
 

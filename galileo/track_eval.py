@@ -36,7 +36,7 @@ class TrackScore:
         return d
 
 
-def score(tracks: Tracks, truth: Trajectory, scene: Scene, latents: dict, video: str = "") -> TrackScore:
+def score(tracks: Tracks, truth: Trajectory, latents: dict, video: str = "") -> TrackScore:
     pos_err, vel_err = [], []
     identity_ok = True
     visible = []
@@ -66,7 +66,7 @@ def evaluate_folder(folder: str | Path, progress: bool = False) -> TrackScore:
     scene = Scene.load(folder / "scene.json")
     truth = json.loads((folder / "truth.json").read_text())
     tracks = track(folder / "video.mp4", scene, progress=progress)
-    return score(tracks, Trajectory.from_json(truth["trajectory"]), scene, truth["latents"], folder.name)
+    return score(tracks, Trajectory.from_json(truth["trajectory"]), truth["latents"], folder.name)
 
 
 def aggregate(scores: list[TrackScore]) -> dict:

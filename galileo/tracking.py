@@ -7,24 +7,24 @@ Pipeline, for a video and a scene file whose camera describes it:
    ends: at frame 0 that shows every object that later leaves its start (a forward model
    cannot, it starts from frame 0). Forwards over all frames at quarter resolution, it
    gives the scene as it starts, against which the last frame shows whether anything moved.
-2. Detection and roles: foreground blobs at frame 0 above the ramp are the ramp object,
-   blobs on the ground beyond the foot the target. An object that never moves has no
-   blob: a target is then taken where the scene file puts it, a ramp object is found by
-   its texture inside the band of start positions the priors allow.
-3. Bottom-up recognition: from the frame-0 silhouette, measured in the plane of the fall
-   line, the shape type (box / cylinder / torus, from the silhouette's corners and the
-   shading across its height) and per-axis size in metres, and the ramp object's offset
-   in units. These fix those latents during MCMC.
-4. KLT per object: good features inside the object's silhouette, pyramidal Lucas-Kanade,
-   a forward-backward check (0.7 px), re-seeding inside the object's predicted silhouette
-   (away from the other object) when fewer than half the features survive.
-5. Pose per frame: every feature is back-projected through the camera onto the plane of
-   the object's visible face (parallel to the fall-line plane); a rigid 2-D transform
-   (rotation + translation in that plane) from the features' positions at seeding to their
-   current positions is fitted by least squares with iterative outlier rejection (features
-   that slid onto the other object or the background drop out). This is robust to lost
-   and wrong features and to the object tipping at the ramp's foot, where a median of
-   displacements is not. The transform moves the object's centre.
+2. Detection and roles: the ramp object is the uphill-most foreground component at frame 0
+   within the band of start positions its offset prior allows (the frame-0 foreground also
+   holds "ghosts" where objects come to rest later); the target is where the scene file
+   puts it, with the size it states.
+3. Bottom-up recognition: from the frame-0 silhouette, the shape type from the object's
+   appearance (a small CNN, `galileo.shapenet`; side views of boxes and cylinders have the
+   same silhouette) and per-axis size in metres and the ramp object's offset in units from
+   fitting the projected 3-D shape to the silhouette. These fix those latents during MCMC.
+4. KLT per object: good features inside the object's silhouette, pyramidal Lucas-Kanade
+   started from a constant-velocity prediction, a forward-backward check, re-seeding
+   inside the object's predicted silhouette (away from the other object) when fewer than
+   half the features survive, and re-acquisition among moving pixels when it is lost.
+5. Pose per frame: every feature is ray-cast at seeding into the estimated 3-D shape; the
+   planar pose (centre in the fall-line plane and rotation about y) minimises the
+   reprojection error of those points (Gauss-Newton with iterative outlier rejection:
+   features that slid onto the other object or the background drop out). This is robust
+   to lost and wrong features, to perspective and to the object tipping at the ramp's
+   foot, where a median of displacements is not.
 6. Positions in metres (world frame), velocities by central differences (one-sided at the
    ends of a visible run), no smoothing. Frames where an object is not seen are marked
    `visible: false` with null position and velocity, never invented.
@@ -79,7 +79,7 @@ class ObjectTrack:
     visible: np.ndarray         # (F,) bool
     shape: Shape
     offset_units: int | None = None
-    detected_by: str = "motion"  # motion | texture | scene
+    detected_by: str = "motion"  # motion (ramp object) | scene (target, from the scene file)
     # for drawing (not saved): image centre and features per frame
     center_px: np.ndarray | None = None
     features_px: list = field(default_factory=list)
@@ -235,16 +235,15 @@ def shape_crop(rgb: np.ndarray, mask: np.ndarray, scene: Scene, role: str) -> np
 
 
 def classify_shape(scene: Scene, role: str, mask: np.ndarray, rgb: np.ndarray, length_m: float,
-                   height_m: float) -> tuple[str, dict[str, float] | None]:
-    """box / cylinder / torus from the object's appearance (`galileo.shapenet`); without
-    its weights, the shape whose projected silhouette fits best (a weak cue: side views
-    of boxes and cylinders coincide)."""
+                   height_m: float) -> str:
+    """box / cylinder / torus from the object's appearance (`galileo.shapenet`); "" without
+    its weights (the caller then takes the shape whose projected silhouette fits best)."""
     from . import shapenet
 
     if shapenet.available():
         crop = shape_crop(rgb, mask, scene, role)
-        return shapenet.predict(crop, shapenet.scalars_of(max(length_m, 1e-3), max(height_m, 1e-3)))
-    return "", None
+        return shapenet.predict(crop, shapenet.scalars_of(max(length_m, 1e-3), max(height_m, 1e-3)))[0]
+    return ""
 
 
 def _outline_points(shape: Shape) -> np.ndarray:
@@ -317,7 +316,7 @@ def _fit_silhouette(scene: Scene, role: str, mask: np.ndarray, kind: str, init: 
 
     p0 = np.array([init[0], *np.log(init[1:])])
     res = minimize(loss, p0, method="Nelder-Mead",
-                   options={"xatol": 1e-4, "fatol": 1e-4, "maxiter": 400, "initial_simplex": None})
+                   options={"xatol": 1e-4, "fatol": 1e-4, "maxiter": 400})
     return float(res.x[0]), shape_of(res.x), float(res.fun)
 
 
@@ -331,7 +330,7 @@ def _measure(scene: Scene, role: str, mask: np.ndarray, rgb: np.ndarray) -> _Fra
     mid = float((a.max() + a.min()) / 2)
     along0 = -mid if role == "ramp" else mid
     init = (along0, max(length, 0.005), max(math.sqrt(length * height), 0.005), max(height, 0.005))
-    kind, _ = classify_shape(scene, role, mask, rgb, length, height)
+    kind = classify_shape(scene, role, mask, rgb, length, height)
     if kind:
         along_m, shape, _ = _fit_silhouette(scene, role, mask, kind, init)
     else:
@@ -525,7 +524,6 @@ class _ObjectTracker:
         self.obj = np.zeros((0, 3))                 # the features' points in the object frame, metres
         self.pose = np.array([f0.center_xz[0], f0.center_xz[1], -f0.phi0])   # x, z, psi
         self.center = np.full((n_frames, 2), np.nan)
-        self.psi = np.full(n_frames, np.nan)
         self.visible = np.zeros(n_frames, bool)
         self.features: list[np.ndarray] = [np.zeros((0, 2))] * n_frames
         self.n_seeded = 0
@@ -576,13 +574,14 @@ class _ObjectTracker:
 
     def _solve(self, pose: np.ndarray, keep: np.ndarray) -> np.ndarray:
         steps = np.array([1e-4, 1e-4, 1e-3])
+        obj, pts = self.obj[keep], self.pts[keep]
         for _ in range(6):
-            r0 = (self.project(self.obj[keep], pose) - self.pts[keep]).ravel()
+            r0 = (self.project(obj, pose) - pts).ravel()
             jac = np.empty((len(r0), 3))
             for k in range(3):
                 dp = pose.copy()
                 dp[k] += steps[k]
-                jac[:, k] = ((self.project(self.obj[keep], dp) - self.pts[keep]).ravel() - r0) / steps[k]
+                jac[:, k] = ((self.project(obj, dp) - pts).ravel() - r0) / steps[k]
             delta = np.linalg.lstsq(jac, -r0, rcond=None)[0]
             pose = pose + delta
             if abs(delta[0]) + abs(delta[1]) < 1e-6 and abs(delta[2]) < 1e-5:
@@ -638,7 +637,6 @@ class _ObjectTracker:
                 self.pose = pose
                 self.pts, self.obj = self.pts[keep], self.obj[keep]
                 self.center[frame] = pose[:2]
-                self.psi[frame] = pose[2]
                 self.visible[frame] = self._in_view()
                 self.features[frame] = self.pts.copy()
                 return

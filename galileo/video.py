@@ -83,19 +83,21 @@ def read_frames(path: str | os.PathLike, fmt: str = "rgb24") -> Iterator[np.ndar
         box.close()
 
 
-def _frame_rate(path: str | os.PathLike) -> float:
-    """The stream's frame rate (checks that the file opens and has a video stream)."""
+def _stream_info(path: str | os.PathLike) -> tuple[float, int, int]:
+    """The stream's frame rate, width and height (checks that the file opens and has a video
+    stream)."""
     box = _open(path)
     try:
-        rate = box.streams.video[0].average_rate or box.streams.video[0].guessed_rate
-        return float(rate) if rate else 30.0
+        stream = box.streams.video[0]
+        rate = stream.average_rate or stream.guessed_rate
+        return (float(rate) if rate else 30.0), int(stream.codec_context.width), int(stream.codec_context.height)
     finally:
         box.close()
 
 
 def read_video(path: str | os.PathLike, fmt: str = "rgb24") -> tuple[np.ndarray, VideoInfo]:
     """All frames (n, H, W[, 3]) and the stream's properties."""
-    fps = _frame_rate(path)
+    fps, _, _ = _stream_info(path)
     frames = list(read_frames(path, fmt))
     if not frames:
         raise GalileoError(f"video {path} has no decodable frames")
@@ -109,7 +111,9 @@ def read_video_yuv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, Vid
     H.264 stores yuv420p: the luma plane is the grey image trackers want and the chroma
     planes are already at the half resolution background subtraction runs at.
     """
-    fps = _frame_rate(path)
+    fps, width, height = _stream_info(path)
+    if width % 2 or height % 2:  # (PyAV cannot decode such a stream to yuv420p)
+        raise GalileoError(f"video {path} has odd dimensions {width}x{height}")
     ys, uvs = [], []
     for f in read_frames(path, "yuv420p"):
         h = f.shape[0] * 2 // 3
@@ -121,8 +125,6 @@ def read_video_yuv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, Vid
     if not ys:
         raise GalileoError(f"video {path} has no decodable frames")
     y = np.stack(ys)
-    if y.shape[1] % 2 or y.shape[2] % 2:
-        raise GalileoError(f"video {path} has odd dimensions {y.shape[2]}x{y.shape[1]}")
     return y, np.stack(uvs), VideoInfo(y.shape[2], y.shape[1], fps, len(ys))
 
 

@@ -53,7 +53,7 @@ from typing import Callable
 import numpy as np
 
 from galileo.errors import GalileoError
-from galileo.inference import BURN_IN_FRACTION, initial_positions
+from galileo.inference import burn_in, initial_positions
 from galileo.likelihood import SIGMA_MPS, VelocityLikelihood, scene_for_inference
 from galileo.mcmc import MHState, Proposal, chain_rng
 from galileo.mcmc import sweep as mh_sweep
@@ -266,7 +266,8 @@ class Controller:
                  session_dir: str | Path | None = None, save_every_s: float = 1.0):
         if int(chains) != chains or chains < 0:
             raise ValueError(f"chains must be an integer >= 0, got {chains!r}")
-        names = VelocityLikelihood(scene, tracks).names   # checks scene against tracks
+        lik_scene = scene_for_inference(scene, tracks)   # checks scene against tracks
+        names = lik_scene.latent_names
         if settings is None:
             settings = Settings({n: tuple(scene.priors.bounds[n]) for n in names})
         else:
@@ -282,6 +283,7 @@ class Controller:
             if (session_dir / sess.CHAINS_FILE).exists():
                 raise GalileoError(f"{session_dir} already holds a session; open it with Controller.load")
         self._setup(scene, tracks, names, int(seed), workers, settings, session_dir, save_every_s)
+        self._likelihood_scene = lik_scene
         with self._lock:
             ids = list(range(int(chains)))
             self._create_chains(ids)
@@ -794,7 +796,7 @@ class Controller:
                              "values": self._values(ch.position)}
             acc = {n: (float(self._acc_k[j] / self._acc_n[j]) if self._acc_n[j] else None)
                    for j, n in enumerate(self.names)}
-            kept = [ch.samples.a[int(ch.samples.n * BURN_IN_FRACTION):ch.samples.n]
+            kept = [ch.samples.a[burn_in(ch.samples.n):ch.samples.n]
                     for _, ch in sorted(self._chains.items()) if not ch.removed and ch.samples.n >= 4]
             best = self.map()
             out = {"running": self.running, "rounds": self._rounds,
@@ -858,7 +860,7 @@ class Controller:
         tracks_json = sess.read_json_file(folder, sess.TRACKS_FILE)
         with sess.reading(path):
             tracks = Tracks.from_json(tracks_json)
-            names = VelocityLikelihood(scene, tracks).names
+            names = scene_for_inference(scene, tracks).latent_names
         path = folder / sess.SETTINGS_FILE
         raw = sess.read_json_file(folder, sess.SETTINGS_FILE)
         with sess.reading(path):

@@ -28,6 +28,7 @@ import trimesh
 import viser
 from viser import uplot
 
+from galileo.inference import burn_in
 from galileo.physics import Simulator, Trajectory
 from galileo.scene import Camera, Scene
 from galileo.shapes import mesh as shape_mesh
@@ -88,6 +89,7 @@ class Viewer:
         self.last_resim_s = 0.0
         self.frame = 0
         self.selection = Selection(0, 0)
+        self.selection_empty = True   # nothing simulated yet
         self._lock = threading.RLock()
         self._dirty = threading.Event()
         self._stop = threading.Event()
@@ -240,18 +242,23 @@ class Viewer:
         ids = self.ctrl.chain_ids()
         return (ids[0] if ids else 0), 0
 
-    def select_sample(self, chain: int, index: int) -> float:
-        """Re-simulate sample `index` of `chain` and redraw; returns the server-side seconds."""
+    def select_sample(self, chain: int, index: int, force: bool = False) -> float:
+        """Re-simulate sample `index` of `chain` and redraw; returns the server-side seconds.
+        The sample shown already is not simulated again unless `force` (samples are only ever
+        appended, so a (chain, index) always means the same values; moving the slider from code
+        calls this through its callback as well)."""
         t0 = time.perf_counter()
         with self._lock:
             samples = self.ctrl.samples(chain)
-            self.selection_empty = len(samples) == 0
             if len(samples) == 0:
                 values = None
                 index = 0
             else:
                 index = int(np.clip(index, 0, len(samples) - 1))
+                if not (force or self.selection_empty) and self.selection == Selection(chain, index):
+                    return 0.0
                 values = {n: float(v) for n, v in zip(self.ctrl.names, samples[index])}
+            self.selection_empty = len(samples) == 0
             self.selection = Selection(chain, index)
             self.traj = self.sim.run(self.n_frames, values, fps=self.fps, with_orientation=True)
             self.resimulations += 1
@@ -349,9 +356,10 @@ class Viewer:
         self.progress.value = 100.0 * done / max(self.target_sweeps * max(len(ids), 1), 1)
         acc = ", ".join(f"{k} {v:.2f}" for k, v in (st.get("acceptance") or {}).items() if v is not None)
         rh = ", ".join(f"{k} {v:.2f}" for k, v in (st.get("r_hat") or {}).items() if v is not None)
-        m = ctrl.map()
-        map_txt = "" if m is None else ("MAP (chain %d, sample %d): " % (m[0], m[1]) +
-                                        ", ".join(f"{k} = {v:.3f}" for k, v in m[2].items()) + f", log-lik {m[3]:.1f}")
+        m = st["map"]
+        map_txt = "" if m is None else (f"MAP (chain {m['chain']}, sample {m['index']}): " +
+                                        ", ".join(f"{k} = {v:.3f}" for k, v in m["values"].items()) +
+                                        f", log-lik {m['loglik']:.1f}")
         running = sum(1 for c in st["chains"].values() if c.get("running"))
         self.status_text.content = (f"{running} running / {len(ids)} chains, {st.get('sweeps', 0)} sweeps  \n"
                                     f"acceptance: {acc or '-'}  \nR-hat: {rh or '-'}  \n{map_txt}")
@@ -383,11 +391,12 @@ class Viewer:
         self.trace_plot.data = tuple(data)
         self.trace_plot.title = "log-likelihood per chain" + (f" (edits at sweeps {edits})" if edits else "")
         samples = [ctrl.samples(c) for c in ids]
-        kept = np.concatenate([s[len(s) // 2:] for s in samples if len(s)]) if any(len(s) for s in samples) else None
+        kept = np.concatenate([s[burn_in(len(s)):] for s in samples if len(s)]) if any(len(s) for s in samples) else None
         if kept is None:
             return
+        bounds = ctrl.settings.bounds
         for j, n in enumerate(ctrl.names):
-            lo, hi = ctrl.settings.bounds[n]
+            lo, hi = bounds[n]
             counts, edges = np.histogram(kept[:, j], bins=30, range=(lo, hi))
             self.hist_plots[n].data = (edges[:-1].astype(float), counts.astype(float))
 
