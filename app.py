@@ -23,7 +23,7 @@ SESSIONS = ROOT / "sessions"
 
 def ensure_demo(progress: bool = True) -> Path:
     """Render the demo video on first run and cache it (with its tracks) under .cache/demo/."""
-    from galileo.dataset import build
+    from galileo.scenarios.ramp.dataset import build
 
     folder = DEMO_DIR / "demo"
     if not (folder / "video.mp4").exists() or not (folder / "scene.json").exists():
@@ -73,7 +73,7 @@ def run(args) -> int:
 
     from galileo.errors import GalileoError
     from galileo.inference import burn_in
-    from galileo.scene import Scene
+    from galileo.scenarios.ramp.scene import Scene
     from galileo.tracking import track
     from galileo.video import read_video
     from ui.controller import Controller

@@ -35,8 +35,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 from galileo.inference import InferenceConfig, infer  # noqa: E402
-from galileo.scene import Scene  # noqa: E402
-from galileo.tracking import Tracks, track  # noqa: E402
+from galileo.scenarios.ramp.scene import Scene  # noqa: E402
+from galileo.datatypes import Tracks  # noqa: E402
+from galileo.tracking import track  # noqa: E402
 
 TARGET_DEFAULT_S = 2.0
 TARGET_SPEEDUP = 10.0
@@ -66,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.video:
         video, scene_path, source = Path(args.video), Path(args.scene), args.video
     else:
-        from galileo.dataset import build
+        from galileo.scenarios.ramp.dataset import build
 
         tmp = tempfile.TemporaryDirectory(prefix="bench-infer-")
         build("demo", tmp.name, workers=1, progress=False)

@@ -25,9 +25,9 @@ def main() -> int:
     ap.add_argument("--samples", type=int, default=200)
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
-    from galileo.dataset import build
-    from galileo.likelihood import scene_for_inference
-    from galileo.scene import Scene
+    from galileo.scenarios.ramp.dataset import build
+    from galileo.scenarios.ramp.likelihood import scene_for_inference
+    from galileo.scenarios.ramp.scene import Scene
     from galileo.tracking import track
     from galileo.video import read_video
     from ui.controller import Controller

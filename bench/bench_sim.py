@@ -31,8 +31,8 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from galileo.physics import Simulator  # noqa: E402  (imports pybullet without its banner)
-from galileo.scene import default_scene  # noqa: E402
+from galileo.scenarios.ramp.physics import Simulator  # noqa: E402  (imports pybullet without its banner)
+from galileo.scenarios.ramp.scene import default_scene  # noqa: E402
 
 import pybullet as pb  # noqa: E402
 

@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from galileo.scene import Scene  # noqa: E402
+from galileo.scenarios.ramp.scene import Scene  # noqa: E402
 from galileo.tracking import MOG_SCALE, track  # noqa: E402
 from galileo.video import read_video_yuv  # noqa: E402
 
@@ -64,7 +64,7 @@ def main() -> int:
     if args.video:
         video, scene_path = Path(args.video), Path(args.scene)
     else:
-        from galileo.dataset import build
+        from galileo.scenarios.ramp.dataset import build
 
         tmp = tempfile.TemporaryDirectory()
         build("demo", tmp.name, progress=False, workers=1)

@@ -25,8 +25,8 @@ def _parse_set(items: list[str]) -> dict[str, float]:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from .physics import Simulator
-    from .scene import Scene, default_scene
+    from .scenarios.ramp.physics import Simulator
+    from .scenarios.ramp.scene import Scene, default_scene
 
     if args.scene:
         quick = [f for f in ("angle_deg", "friction", "mass", "target") if getattr(args, f) is not None]
@@ -59,7 +59,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_dataset(args: argparse.Namespace) -> int:
-    from .dataset import build
+    from .scenarios.ramp.dataset import build
 
     entries = build(args.preset, args.out, seed=args.seed, workers=args.workers, progress=not args.quiet)
     print(f"wrote {len(entries)} video(s) to {args.out} (index: {Path(args.out) / 'index.json'})")
@@ -67,7 +67,7 @@ def cmd_dataset(args: argparse.Namespace) -> int:
 
 
 def cmd_track(args: argparse.Namespace) -> int:
-    from .scene import Scene
+    from .scenarios.ramp.scene import Scene
     from .tracking import track
 
     scene = Scene.load(args.scene)
@@ -84,8 +84,9 @@ def cmd_track(args: argparse.Namespace) -> int:
 def cmd_infer(args: argparse.Namespace) -> int:
     from .inference import InferenceConfig, infer
     from .mcmc import Proposal
-    from .scene import Scene
-    from .tracking import Tracks, track
+    from .scenarios.ramp.scene import Scene
+    from .datatypes import Tracks
+    from .tracking import track
 
     if args.chains < 1 or args.sweeps < 1:  # before tracking, which takes a while
         raise GalileoError("--chains and --sweeps must be at least 1")
@@ -113,8 +114,8 @@ def cmd_predict(args: argparse.Namespace) -> int:
     import json
 
     from .jsonio import write_json
-    from .predict import Prediction
-    from .scene import Scene
+    from .scenarios.ramp.predict import Prediction
+    from .scenarios.ramp.scene import Scene
 
     pred = Prediction(args.result)
     out: dict = {}
@@ -134,7 +135,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
 def cmd_experiment(args: argparse.Namespace) -> int:
     import json
 
-    from .experiments import run_experiments
+    from .scenarios.ramp.experiments import run_experiments
     from .inference import InferenceConfig
 
     cfg = InferenceConfig(chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=args.workers)

@@ -21,10 +21,10 @@ from tqdm import tqdm
 
 from .errors import GalileoError
 from .jsonio import atomic_write_bytes, write_json
-from .likelihood import SIGMA_MPS, VelocityLikelihood
+from .scenarios.ramp.likelihood import SIGMA_MPS, VelocityLikelihood
 from .mcmc import Proposal, run_chain
-from .scene import Scene
-from .tracking import Tracks
+from .scenarios.ramp.scene import Scene
+from .datatypes import Tracks
 
 BURN_IN_FRACTION = 0.5  # posterior summaries and R-hat/ESS use the second half of each chain
 
@@ -64,7 +64,7 @@ def _worker_init(scene_json: dict, tracks_json: dict, sigma: float, speedups: bo
 
     if mp.parent_process() is not None:  # in a worker: Ctrl-C is the parent's to handle
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    from .scene import scene_from_json
+    from .scenarios.ramp.scene import scene_from_json
 
     _worker_likelihood = VelocityLikelihood(scene_from_json(scene_json), Tracks.from_json(tracks_json),
                                             sigma, speedups)
@@ -221,7 +221,7 @@ def infer(scene: Scene, tracks: Tracks, config: InferenceConfig | None = None, p
                 bar.update()
     bar.close()
     results.sort(key=lambda r: r["chain"])
-    from .likelihood import scene_for_inference
+    from .scenarios.ramp.likelihood import scene_for_inference
 
     proposals = {k: np.stack([r[k] for r in results]) for k in
                  ("site", "proposal", "proposal_loglik", "accepted", "early_stop")}

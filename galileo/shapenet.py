@@ -90,7 +90,7 @@ def predict(crop: np.ndarray, scalars: np.ndarray) -> tuple[str, dict[str, float
 # -- training data from the generative model ------------------------------------------------------
 
 def _random_shape(rng: np.random.Generator, kind: str) -> Shape:
-    from .materials import MATERIALS
+    from .scenarios.ramp.materials import MATERIALS
 
     options = [(m, r) for m in MATERIALS for k, r in m.shapes if k == kind]
     mat, ranges = options[int(rng.integers(len(options)))]
@@ -111,8 +111,8 @@ def _random_shape(rng: np.random.Generator, kind: str) -> Shape:
 
 def _example(seed: int):
     """One rendered training example: (crop, scalars, label)."""
-    from .render import Look, Renderer
-    from .scene import Ramp, Scene, SceneObject, default_camera
+    from .scenarios.ramp.render import Look, Renderer
+    from .scenarios.ramp.scene import Ramp, Scene, SceneObject, default_camera
     from .tracking import shape_crop
 
     rng = np.random.default_rng(seed)

@@ -7,9 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .physics import Trajectory
-from .scene import Scene
-from .tracking import Tracks, track
+from .datatypes import Trajectory
+from .scenarios.ramp.scene import Scene
+from .datatypes import Tracks
+from .tracking import track
 
 MOVING_MPS = 0.02  # a frame counts as "moving" for an object whose true speed exceeds this
 

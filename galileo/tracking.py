@@ -43,7 +43,9 @@ from tqdm import tqdm
 
 from .errors import GalileoError
 from .jsonio import read_json, write_json
-from .scene import Camera, Scene
+from .camera import Camera, backproject_to_plane
+from .datatypes import ObjectTrack, Tracks
+from .scenarios.ramp.scene import Scene
 from .shapes import Shape
 from .video import read_video_yuv, yuv_to_rgb
 
@@ -53,88 +55,6 @@ FB_MAX_PX = 0.7            # forward-backward error allowed
 MAX_FEATURES = 48
 MIN_INLIERS = 4
 INLIER_PX = 1.0            # reprojection residual that always keeps a feature in the pose fit
-
-
-# -- camera geometry --------------------------------------------------------------------
-
-def backproject_to_plane(cam: Camera, uv: np.ndarray, y_plane_m: float) -> np.ndarray:
-    """Pixels (N, 2) -> world points (N, 3) on the plane y = y_plane_m."""
-    uv = np.asarray(uv, float).reshape(-1, 2)
-    r, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
-    rays_cam = np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(cam.K).T
-    rays = rays_cam @ r                 # directions in world (R^T d)
-    origin = -r.T @ t
-    s = (y_plane_m - origin[1]) / rays[:, 1]
-    return origin + s[:, None] * rays
-
-
-# -- output -----------------------------------------------------------------------------
-
-@dataclass
-class ObjectTrack:
-    name: str
-    role: str
-    position_m: np.ndarray      # (F, 3), NaN where not visible
-    velocity_mps: np.ndarray    # (F, 3), NaN where not visible
-    visible: np.ndarray         # (F,) bool
-    shape: Shape
-    offset_units: int | None = None
-    detected_by: str = "motion"  # motion (ramp object) | scene (target, from the scene file)
-    # for drawing (not saved): image centre and features per frame
-    center_px: np.ndarray | None = None
-    features_px: list = field(default_factory=list)
-
-    def to_json(self) -> dict:
-        def rows(a):
-            return [None if not v else [float(x) for x in row] for row, v in zip(a, self.visible)]
-        d = {"name": self.name, "role": self.role, "position_m": rows(self.position_m),
-             "velocity_mps": rows(self.velocity_mps), "visible": [bool(v) for v in self.visible],
-             "shape": {"type": self.shape.type, "size_m": list(self.shape.size_m)},
-             "offset_units": self.offset_units, "detected_by": self.detected_by}
-        return d
-
-
-@dataclass
-class Tracks:
-    fps: float
-    objects: list[ObjectTrack]
-
-    @property
-    def n_frames(self) -> int:
-        return len(self.objects[0].visible) if self.objects else 0
-
-    @property
-    def time_s(self) -> np.ndarray:
-        return np.arange(self.n_frames) / self.fps
-
-    def by_role(self, role: str) -> ObjectTrack | None:
-        return next((o for o in self.objects if o.role == role), None)
-
-    def to_json(self) -> dict:
-        return {"fps": self.fps, "time_s": self.time_s.tolist(), "objects": [o.to_json() for o in self.objects]}
-
-    def save(self, path: str | Path) -> None:
-        write_json(path, self.to_json(), indent=None)
-
-    @classmethod
-    def from_json(cls, d: dict) -> "Tracks":
-        try:
-            objs = []
-            for o in d["objects"]:
-                vis = np.array(o["visible"], bool)
-                nan3 = [math.nan] * 3
-                pos = np.array([p if p is not None else nan3 for p in o["position_m"]], float).reshape(-1, 3)
-                vel = np.array([p if p is not None else nan3 for p in o["velocity_mps"]], float).reshape(-1, 3)
-                shape = Shape(o["shape"]["type"], tuple(o["shape"]["size_m"]))
-                objs.append(ObjectTrack(o["name"], o["role"], pos, vel, vis, shape, o.get("offset_units"),
-                                        o.get("detected_by", "motion")))
-            return cls(float(d["fps"]), objs)
-        except (KeyError, TypeError, ValueError, IndexError) as e:
-            raise GalileoError(f"malformed tracks JSON: {e}") from None
-
-    @classmethod
-    def load(cls, path: str | Path) -> "Tracks":
-        return cls.from_json(read_json(path, "tracks file"))
 
 
 # -- background subtraction ---------------------------------------------------------------

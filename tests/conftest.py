@@ -11,7 +11,7 @@ if str(ROOT) not in sys.path:
 @pytest.fixture(scope="session")
 def demo_dir(tmp_path_factory):
     """The rendered demo preset (one video), shared by the tests of a session."""
-    from galileo.dataset import build
+    from galileo.scenarios.ramp.dataset import build
 
     out = tmp_path_factory.mktemp("demo")
     build("demo", out, seed=0, workers=1, progress=False)
@@ -29,8 +29,8 @@ def free_port() -> int:
 
 def demo_viewer(demo_dir, session_dir, *, chains: int, seed: int, sweeps: int):
     """A controller with `sweeps` rounds done and a viewer on it, for the demo video."""
-    from galileo.likelihood import scene_for_inference
-    from galileo.scene import Scene
+    from galileo.scenarios.ramp.likelihood import scene_for_inference
+    from galileo.scenarios.ramp.scene import Scene
     from galileo.tracking import track
     from galileo.video import read_video
     from ui.controller import Controller

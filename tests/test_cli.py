@@ -34,7 +34,7 @@ def test_simulate_quick_form_writes_documented_trajectory(tmp_path):
 
 
 def test_simulate_scene_with_set(tmp_path):
-    from galileo.scene import default_scene
+    from galileo.scenarios.ramp.scene import default_scene
 
     scene_path = tmp_path / "scene.json"
     default_scene(20, target="foam").save(scene_path)

@@ -12,8 +12,8 @@ import pytest
 
 from galileo.errors import GalileoError
 from galileo.inference import InferenceConfig, infer
-from galileo.likelihood import VelocityLikelihood
-from galileo.scene import Scene
+from galileo.scenarios.ramp.likelihood import VelocityLikelihood
+from galileo.scenarios.ramp.scene import Scene
 from galileo.tracking import track
 from ui import session as sess
 from ui.controller import Controller, Settings

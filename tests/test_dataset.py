@@ -5,10 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from galileo.dataset import plan
-from galileo.materials import MATERIALS, catalogue
-from galileo.physics import Simulator, Trajectory
-from galileo.scene import Scene
+from galileo.scenarios.ramp.dataset import plan
+from galileo.scenarios.ramp.materials import MATERIALS, catalogue
+from galileo.datatypes import Trajectory
+from galileo.scenarios.ramp.physics import Simulator
+from galileo.scenarios.ramp.scene import Scene
 from galileo.video import read_video
 
 
@@ -42,7 +43,7 @@ def test_truth_trajectory_is_the_scene_simulated(demo_dir):
 
 
 def test_demo_is_deterministic_for_a_seed(demo_dir, tmp_path):
-    from galileo.dataset import build
+    from galileo.scenarios.ramp.dataset import build
 
     build("demo", tmp_path, seed=0, workers=1, progress=False)
     for name in ("scene.json", "truth.json"):
@@ -77,7 +78,7 @@ def test_catalogue_and_presets_follow_the_paper():
 
 @pytest.mark.slow
 def test_small_preset_renders(tmp_path):
-    from galileo.dataset import build
+    from galileo.scenarios.ramp.dataset import build
 
     entries = build("small", tmp_path, seed=0, progress=False)
     assert len(entries) == 20

@@ -4,8 +4,8 @@ import pytest
 
 @pytest.mark.slow
 def test_small_preset_recovery(tmp_path):
-    from galileo.dataset import build
-    from galileo.experiments import run_experiments
+    from galileo.scenarios.ramp.dataset import build
+    from galileo.scenarios.ramp.experiments import run_experiments
 
     build("small", tmp_path, seed=0, progress=False)
     report = run_experiments(tmp_path, progress=False, out=tmp_path / "report.json")

@@ -10,8 +10,8 @@ import pytest
 
 from galileo import inference
 from galileo.inference import InferenceConfig, InferenceResult, infer, load_samples
-from galileo.likelihood import VelocityLikelihood
-from galileo.scene import Scene, scene_from_json
+from galileo.scenarios.ramp.likelihood import VelocityLikelihood
+from galileo.scenarios.ramp.scene import Scene, scene_from_json
 from galileo.tracking import track
 
 LATENT_NAMES = ("m1_kg", "k1", "m2_kg", "k2")
@@ -126,8 +126,8 @@ def test_prefix_reuse_equals_a_full_simulation(demo):
 def _bullet_run(scene, values, n_frames, spf, drop_at_step=None):
     """One uninterrupted Bullet run of the scene with `values` from t = 0 (contacts dropped
     after step `drop_at_step`, if given): per frame, positions and velocities (O, F, 3)."""
-    from galileo.bullet import pb
-    from galileo.physics import Simulator
+    from galileo.sim.bullet import pb
+    from galileo.scenarios.ramp.physics import Simulator
 
     sim = Simulator(scene)
     w = sim.reset(values)
@@ -182,7 +182,7 @@ def test_saved_prefixes_survive_a_rebuilt_world(demo, in_between):
     still gives the plain path's value."""
     import dataclasses
 
-    from galileo.physics import Simulator
+    from galileo.scenarios.ramp.physics import Simulator
 
     scene, tracks, x0 = demo
     fast = VelocityLikelihood(scene, tracks, speedups=True)

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-import galileo.physics as physics
-from galileo.physics import Simulator
-from galileo.scene import default_scene
+import galileo.sim.bullet as bullet
+from galileo.scenarios.ramp.physics import Simulator
+from galileo.scenarios.ramp.scene import default_scene
 from galileo.shapes import Shape
 
 import pybullet as pb  # after galileo.physics, which imports it quietly
@@ -188,9 +188,9 @@ def test_reused_world_matches_fresh_world():
     values = [values[i] for i in rng.permutation(len(values))]
     sim = Simulator(scene)
     reused = [sim.run(90, v) for v in values]
-    assert physics._built is sim.world  # no rebuild happened along the way
+    assert bullet._world is sim.world  # no rebuild happened along the way
     for v, r in zip(values, reused):
-        physics._built = None
+        bullet._world = None
         fresh = Simulator(scene).run(90, v)
         assert np.array_equal(fresh.position_m, r.position_m), v
         assert np.array_equal(fresh.velocity_mps, r.velocity_mps), v
@@ -203,15 +203,15 @@ def test_world_built_for_another_offset():
     # built with must still start at its own offset, exactly as a world built for it would
     a = default_scene(20, target="cardboard", offset_units=0)
     b = default_scene(20, target="cardboard", offset_units=3)
-    physics._built = None
+    bullet._world = None
     Simulator(a).run(30)
-    world = physics._built
+    world = bullet._world
     reused = Simulator(b).run(30)
-    assert physics._built is world
+    assert bullet._world is world
     np.testing.assert_allclose(reused.position_m[0, 0], b.initial_pose(0)[0], atol=1e-12)
-    physics._built = None
+    bullet._world = None
     fresh = Simulator(b).run(30)
-    assert physics._built is not world
+    assert bullet._world is not world
     assert np.array_equal(fresh.position_m, reused.position_m)
     assert np.array_equal(fresh.velocity_mps, reused.velocity_mps)
 
@@ -219,18 +219,18 @@ def test_world_built_for_another_offset():
 def test_world_built_once_per_geometry():
     scene = default_scene(20, target="cardboard")
     Simulator(scene).run(5)
-    world = physics._built
+    world = bullet._world
     assert world is not None
     # latents, offset and restitution are not geometry: same world
     other = scene.with_values({"m1_kg": 0.1, "k1": 0.5, "m2_kg": 0.9, "k2": 0.1, "offset_units": -3, "e1": 0.5})
     sim = Simulator(other)
     sim.run(5)
-    assert physics._built is world and sim.world is world
+    assert bullet._world is world and sim.world is world
     Simulator(default_scene(20, target="cardboard")).run(5)
-    assert physics._built is world
+    assert bullet._world is world
     # a different geometry is a different world
     Simulator(default_scene(25, target="cardboard")).run(5)
-    assert physics._built is not world
+    assert bullet._world is not world
 
 
 # -- the torus -----------------------------------------------------------------------------------------

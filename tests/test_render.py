@@ -6,13 +6,13 @@ import itertools
 import numpy as np
 import pytest
 
-from galileo.render import Look, Renderer
-from galileo.scene import default_camera, default_scene
+from galileo.scenarios.ramp.render import Look, Renderer
+from galileo.scenarios.ramp.scene import default_camera, default_scene
 from galileo.shapes import Shape
 
 
 def _box_corners_in_world(scene, index, pos, orn):
-    from galileo.bullet import pb
+    from galileo.sim.bullet import pb
 
     sx, sy, sz = scene.objects[index].shape.size_m
     r = np.array(pb.getMatrixFromQuaternion(orn)).reshape(3, 3)

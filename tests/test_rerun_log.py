@@ -62,15 +62,15 @@ def free_port(host: str = "127.0.0.1") -> int:
 
 @pytest.fixture(scope="module")
 def demo_tracks(demo_dir):
-    from galileo.scene import Scene
+    from galileo.scenarios.ramp.scene import Scene
     from galileo.tracking import track
 
     return track(demo_dir / "video.mp4", Scene.load(demo_dir / "scene.json"), progress=False)
 
 
 def test_save_sweeps_posterior_event_simulation(tmp_path):
-    from galileo.physics import Simulator
-    from galileo.scene import default_scene
+    from galileo.scenarios.ramp.physics import Simulator
+    from galileo.scenarios.ramp.scene import default_scene
 
     traj = Simulator(default_scene(20, target="cardboard")).run(20)
     rng = np.random.default_rng(1)
@@ -177,7 +177,7 @@ def test_log_video_falls_back_to_images(demo_dir, demo_tracks, tmp_path, monkeyp
 
 
 def test_off_is_a_no_op(tmp_path):
-    from galileo.physics import Trajectory
+    from galileo.datatypes import Trajectory
 
     log = RerunLogger("off", session_dir=tmp_path)
     assert log.web_url is None and not log.enabled

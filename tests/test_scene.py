@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from galileo.errors import GalileoError, SceneError
-from galileo.scene import (DEFAULT_BOUNDS, LATENTS, Priors, Scene, default_camera, default_scene,
+from galileo.scenarios.ramp.scene import (DEFAULT_BOUNDS, LATENTS, Priors, Scene, default_camera, default_scene,
                            look_at_camera, scene_from_json)
 from galileo.shapes import Shape
 

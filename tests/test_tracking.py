@@ -6,10 +6,12 @@ import pytest
 
 from galileo.cli import main
 from galileo.errors import GalileoError
-from galileo.physics import Trajectory
-from galileo.scene import Scene, default_camera, default_scene
+from galileo.datatypes import Trajectory
+from galileo.scenarios.ramp.scene import Scene, default_camera, default_scene
 from galileo.track_eval import score
-from galileo.tracking import Tracks, backproject_to_plane, track, velocity_from_positions
+from galileo.camera import backproject_to_plane
+from galileo.datatypes import Tracks
+from galileo.tracking import track, velocity_from_positions
 from galileo.video import read_video, write_video
 
 
@@ -49,7 +51,7 @@ def test_unseen_frames_are_null_not_invented():
     vel = velocity_from_positions(pos, vis, 30.0)
     assert np.isnan(vel[2]).all() and not np.isnan(vel[[0, 1, 3]]).any()
     from galileo.shapes import Shape
-    from galileo.tracking import ObjectTrack
+    from galileo.datatypes import ObjectTrack
 
     tr = Tracks(30.0, [ObjectTrack("a", "ramp", pos, vel, vis, Shape("box", (0.05, 0.05, 0.05)), 0)])
     d = json.loads(json.dumps(tr.to_json()))
@@ -94,7 +96,7 @@ def test_tracks_file_has_the_trajectory_layout(demo_dir, tmp_path):
 @pytest.fixture(scope="module")
 def untouched_target_video(tmp_path_factory):
     """The ramp object stops on the ground well before the target: the target never moves."""
-    from galileo.render import Look, render_to_video
+    from galileo.scenarios.ramp.render import Look, render_to_video
 
     scene = default_scene(20, friction=0.33, target="cardboard", distance_m=0.3,
                           camera=default_camera(n_frames=61))
@@ -197,7 +199,7 @@ def test_small_preset_accuracy(tmp_path):
     RMSE <= 0.05 m/s over frames in which objects move, identities kept through every
     collision, shape type right for >= 80% of ramp objects. Videos in which nothing moves
     must be refused with a clear error."""
-    from galileo.dataset import build
+    from galileo.scenarios.ramp.dataset import build
     from galileo.track_eval import aggregate, evaluate_folder
 
     entries = build("small", tmp_path, seed=0, progress=False)

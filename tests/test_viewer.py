@@ -37,7 +37,7 @@ def test_jump_to_map_selects_the_map_sample(setup):
     chain, index, values, _ = ctrl.map()
     assert (v.selection.chain, v.selection.index) == (chain, index)
     # the objects stand where the MAP sample's simulation puts them at the current frame
-    from galileo.physics import Simulator
+    from galileo.scenarios.ramp.physics import Simulator
 
     traj = Simulator(v.scene).run(v.n_frames, values, fps=v.fps)
     np.testing.assert_allclose(v.object_handles[0].position, traj.position_m[0, v.frame], atol=1e-9)

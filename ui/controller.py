@@ -54,11 +54,11 @@ import numpy as np
 
 from galileo.errors import GalileoError
 from galileo.inference import burn_in, initial_positions
-from galileo.likelihood import SIGMA_MPS, VelocityLikelihood, scene_for_inference
+from galileo.scenarios.ramp.likelihood import SIGMA_MPS, VelocityLikelihood, scene_for_inference
 from galileo.mcmc import MHState, Proposal, chain_rng
 from galileo.mcmc import sweep as mh_sweep
-from galileo.scene import Scene, scene_from_json
-from galileo.tracking import Tracks
+from galileo.scenarios.ramp.scene import Scene, scene_from_json
+from galileo.datatypes import Tracks
 
 from . import session as sess
 

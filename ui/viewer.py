@@ -29,10 +29,12 @@ import viser
 from viser import uplot
 
 from galileo.inference import burn_in
-from galileo.physics import Simulator, Trajectory
-from galileo.scene import Camera, Scene
+from galileo.datatypes import Trajectory
+from galileo.scenarios.ramp.physics import Simulator
+from galileo.camera import Camera
+from galileo.scenarios.ramp.scene import Scene
 from galileo.shapes import mesh as shape_mesh
-from galileo.tracking import Tracks
+from galileo.datatypes import Tracks
 
 OBJECT_COLORS = [(220, 90, 50), (70, 130, 220)]
 CHAIN_COLORS = ["#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#bfef45",

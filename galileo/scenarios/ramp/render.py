@@ -17,11 +17,14 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from .bullet import pb
+from ...sim.bullet import pb
 
 from .materials import MATERIALS_BY_NAME, TARGETS
-from .physics import Simulator, Trajectory, _scratch_dir
-from .scene import Camera, Scene
+from ...datatypes import Trajectory
+from ...sim.bullet import scratch_dir
+from .physics import Simulator
+from ...camera import Camera
+from .scene import Scene
 
 NEAR_M, FAR_M = 0.05, 20.0
 # TinyRenderer's rasterisation puts a projected point this far (pixels) from where the
@@ -71,7 +74,7 @@ def _load_texture(img_rgb: np.ndarray, name: str, cid: int) -> int:
     """Write the texture to a PNG (whole, then renamed into place) and load it."""
     import os
 
-    path = _scratch_dir() / f"{name}.png"
+    path = scratch_dir() / f"{name}.png"
     tmp = path.with_name(f".{path.stem}.tmp.png")
     if not cv2.imwrite(str(tmp), img_rgb[..., ::-1]):
         raise RuntimeError(f"cannot write texture {tmp}")
@@ -174,7 +177,7 @@ class Renderer:
 def render_to_video(scene: Scene, path: str | Path, n_frames: int, look: Look | None = None,
                     texture_seed: int = 0, values: dict[str, float] | None = None) -> Trajectory:
     """Render the scene's simulation to an H.264 MP4; returns the simulated trajectory."""
-    from .video import write_video
+    from ...video import write_video
 
     renderer = Renderer(scene, look, texture_seed)
     frames: list[np.ndarray] = []

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import GalileoError
-from .inference import burn_in, load_samples
-from .jsonio import read_json
+from ...errors import GalileoError
+from ...inference import burn_in, load_samples
+from ...jsonio import read_json
 from .physics import Simulator
 from .scene import Scene, scene_from_json
 

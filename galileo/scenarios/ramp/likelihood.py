@@ -53,11 +53,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bullet import pb
-from .errors import GalileoError
+from ...sim.bullet import pb
+from ...errors import GalileoError
 from .physics import Simulator
 from .scene import Scene
-from .tracking import Tracks
+from ...datatypes import Tracks
 
 REST_MPS = 1e-3        # linear speed below which an object counts as at rest (m/s)
 REST_RADPS = 0.02      # and angular speed (rad/s)

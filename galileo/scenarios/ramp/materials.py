@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .shapes import Shape
+from ...shapes import Shape
 
 
 @dataclass(frozen=True)

@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from .jsonio import write_json
+from ...jsonio import write_json
 from .materials import MATERIALS, MATERIALS_BY_NAME, CatalogueObject, catalogue, sample_target
 from .physics import Simulator
 from .scene import Ramp, Scene, SceneObject, default_camera
-from .shapes import Shape
+from ...shapes import Shape
 
 PRESETS = ("demo", "small", "full")
 TARGET_CYCLE = ("cardboard", "foam", "none")

@@ -16,23 +16,14 @@ contacts, so a reused world reproduces a freshly built one bit for bit.
 """
 from __future__ import annotations
 
-import math
-import multiprocessing.util as mp_util
-import os
-import shutil
-import tempfile
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from .bullet import pb
-import trimesh
 
-from .jsonio import read_json, write_json
-from .errors import GalileoError
-from .scene import Scene, SceneObject
-from .shapes import render_mesh, torus_convex_parts
+from ...datatypes import Trajectory
+from ...errors import GalileoError
+from ...sim.bullet import cached_world, client, collision_shape, pb, visual_shape
+from .scene import Scene
 
 GROUND_SIZE_M = (8.0, 4.0, 0.1)
 # A round cylinder lying along the fall line is neutrally stable across the ramp; Bullet's
@@ -45,116 +36,12 @@ CYLINDER_ROLLING_FRICTION = 0.0005
 SOLVER_ITERATIONS = 10
 
 
-@dataclass
-class Trajectory:
-    """Per-frame centre-of-mass positions (m) and velocities (m/s) in the world frame."""
-    fps: float
-    names: list[str]
-    position_m: np.ndarray    # (n_objects, n_frames, 3)
-    velocity_mps: np.ndarray  # (n_objects, n_frames, 3)
-    orientation_xyzw: np.ndarray | None = None  # (n_objects, n_frames, 4), when asked for (not saved)
-
-    @property
-    def n_frames(self) -> int:
-        return self.position_m.shape[1]
-
-    @property
-    def time_s(self) -> np.ndarray:
-        return np.arange(self.n_frames) / self.fps
-
-    def to_json(self) -> dict:
-        return {"fps": self.fps, "time_s": self.time_s.tolist(),
-                "objects": [{"name": n, "position_m": self.position_m[i].tolist(),
-                             "velocity_mps": self.velocity_mps[i].tolist()} for i, n in enumerate(self.names)]}
-
-    @classmethod
-    def from_json(cls, d: dict) -> "Trajectory":
-        try:
-            objs = d["objects"]
-            return cls(float(d["fps"]), [o["name"] for o in objs],
-                       np.array([o["position_m"] for o in objs], float).reshape(len(objs), -1, 3),
-                       np.array([o["velocity_mps"] for o in objs], float).reshape(len(objs), -1, 3))
-        except (KeyError, TypeError, ValueError) as e:
-            raise GalileoError(f"malformed trajectory JSON: {e}") from None
-
-    def save(self, path: str | Path) -> None:
-        write_json(path, self.to_json(), indent=None)
-
-    @classmethod
-    def load(cls, path: str | Path) -> "Trajectory":
-        return cls.from_json(read_json(path, "trajectory file"))
-
-
-# -- the process's single pybullet client -----------------------------------------------
-
-_client: int | None = None
-_built: "_World | None" = None
-_mesh_dir: Path | None = None
-
-
-_client_pid: int | None = None
-
-
-def _get_client() -> int:
-    """The process's pybullet client (a forked child connects its own, never its parent's)."""
-    global _client, _client_pid, _built
-    if _client is None or _client_pid != os.getpid() or not pb.isConnected(_client):
-        _client = pb.connect(pb.DIRECT)
-        _client_pid = os.getpid()
-        _built = None
-    return _client
-
-
-_mesh_dir_pid: int | None = None
-
-
-def _scratch_dir() -> Path:
-    """This process's folder for mesh and texture files (a forked child makes its own: two
-    processes writing the same file name made the renderer read half-written textures)."""
-    global _mesh_dir, _mesh_dir_pid
-    if _mesh_dir is None or _mesh_dir_pid != os.getpid():
-        _mesh_dir = Path(tempfile.mkdtemp(prefix="galileo-meshes-"))
-        _mesh_dir_pid = os.getpid()
-        # (atexit handlers do not run in multiprocessing's forked workers; its finalizers do,
-        # in the parent too, and a child drops the ones it inherited)
-        mp_util.Finalize(None, shutil.rmtree, args=(str(_mesh_dir),), kwargs={"ignore_errors": True},
-                         exitpriority=0)
-    return _mesh_dir
-
-
-def _collision_shape(obj: SceneObject, cid: int) -> int:
-    sx, sy, sz = obj.shape.size_m
-    if obj.shape.type == "box":
-        return pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[sx / 2, sy / 2, sz / 2], physicsClientId=cid)
-    if obj.shape.type == "cylinder":
-        # Bullet's cylinder runs along z; ours lies along x
-        q = pb.getQuaternionFromEuler([0, math.pi / 2, 0])
-        return pb.createCollisionShape(pb.GEOM_CYLINDER, radius=sy / 2, height=sx,
-                                       collisionFrameOrientation=q, physicsClientId=cid)
-    files = []
-    d = _scratch_dir()
-    for i, pts in enumerate(torus_convex_parts(obj.shape)):
-        f = d / f"torus_{sx:.6f}_{sz:.6f}_{i}.obj"
-        if not f.exists():
-            trimesh.convex.convex_hull(pts).export(f)
-        files.append(str(f))
-    n = len(files)
-    return pb.createCollisionShapeArray([pb.GEOM_MESH] * n, fileNames=files, meshScales=[[1, 1, 1]] * n,
-                                        physicsClientId=cid)
-
-
-def _visual_shape(obj: SceneObject, cid: int) -> int:
-    m = render_mesh(obj.shape)
-    return pb.createVisualShape(pb.GEOM_MESH, vertices=m.vertices.tolist(), indices=m.indices.tolist(),
-                                uvs=m.uvs.tolist(), normals=m.normals.tolist(), physicsClientId=cid)
-
-
 class _World:
     """Bodies of one scene geometry in the process's client, with a saved initial state."""
 
     def __init__(self, scene: Scene, visual: bool):
         self.key = (scene.geometry_key(), visual)
-        cid = self.cid = _get_client()
+        cid = self.cid = client()
         pb.resetSimulation(physicsClientId=cid)
         pb.setPhysicsEngineParameter(fixedTimeStep=1.0 / scene.sim_hz, numSubSteps=0,
                                      deterministicOverlappingPairs=1, numSolverIterations=SOLVER_ITERATIONS,
@@ -185,8 +72,8 @@ class _World:
         self.inertia_per_kg = []
         for i, obj in enumerate(scene.objects):
             pos, orn = scene.initial_pose(i)
-            b = pb.createMultiBody(obj.mass_kg, _collision_shape(obj, cid),
-                                   _visual_shape(obj, cid) if visual else -1,
+            b = pb.createMultiBody(obj.mass_kg, collision_shape(obj.shape, cid),
+                                   visual_shape(obj.shape, cid) if visual else -1,
                                    basePosition=pos.tolist(), baseOrientation=list(orn), physicsClientId=cid)
             rolling = CYLINDER_ROLLING_FRICTION if obj.shape.type == "cylinder" else 0.0
             pb.changeDynamics(b, -1, linearDamping=0.0, angularDamping=0.0, rollingFriction=rolling,
@@ -211,12 +98,8 @@ class Simulator:
 
     @property
     def world(self) -> _World:
-        global _built
-        key = (self.scene.geometry_key(), self.visual)
-        if _built is None or _built.key != key or _built.cid != _get_client():
-            _built = _World(self.scene, self.visual)
-        self._world = _built
-        return _built
+        self._world = cached_world((self.scene.geometry_key(), self.visual), lambda: _World(self.scene, self.visual))
+        return self._world
 
     def reset(self, values: dict[str, float] | None = None) -> _World:
         """Restore the initial state and apply the scene's (or the given) latents."""

@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from .errors import GalileoError
-from .inference import InferenceConfig, infer
-from .jsonio import write_json
-from .physics import Trajectory
+from ...errors import GalileoError
+from ...inference import InferenceConfig, infer
+from ...jsonio import write_json
+from ...datatypes import Trajectory
 from .predict import slides
 from .scene import Scene
-from .tracking import track
+from ...tracking import track
 
 MOVED_M = 0.005
 

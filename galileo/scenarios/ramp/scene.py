@@ -18,9 +18,11 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from .errors import SceneError
-from .jsonio import read_json, write_json
-from .shapes import SHAPE_TYPES, Shape
+from ...camera import Camera, camera_from_json, look_at_camera
+from ...errors import SceneError
+from ...fields import field_value, matrix, number, pair
+from ...jsonio import read_json, write_json
+from ...shapes import SHAPE_TYPES, Shape
 
 SCENE_VERSION = 1
 ROLES = ("ramp", "target")
@@ -149,65 +151,6 @@ class SceneObject:
 
 
 @dataclass(frozen=True)
-class Camera:
-    """Pinhole camera, OpenCV convention (x right, y down, z forward)."""
-    K: np.ndarray               # (3, 3) intrinsics in pixels
-    world_to_camera: np.ndarray  # (4, 4) rigid transform
-    width_px: int = 640
-    height_px: int = 480
-    fps: float = 30.0
-    n_frames: int = 90
-
-    def __eq__(self, other: object) -> bool:
-        # the generated __eq__ compares the arrays with `==` and raises on their truth value
-        if not isinstance(other, Camera):
-            return NotImplemented
-        return (np.array_equal(self.K, other.K) and np.array_equal(self.world_to_camera, other.world_to_camera)
-                and (self.width_px, self.height_px, self.fps, self.n_frames)
-                == (other.width_px, other.height_px, other.fps, other.n_frames))
-
-    def project(self, pos_in_world: np.ndarray) -> np.ndarray:
-        """World points (..., 3) -> pixel coordinates (..., 2)."""
-        p = np.asarray(pos_in_world, float)
-        pc = p @ self.world_to_camera[:3, :3].T + self.world_to_camera[:3, 3]
-        uv = pc @ self.K.T
-        return uv[..., :2] / uv[..., 2:3]
-
-    @property
-    def position_in_world(self) -> np.ndarray:
-        r, t = self.world_to_camera[:3, :3], self.world_to_camera[:3, 3]
-        return -r.T @ t
-
-    def to_json(self) -> dict:
-        return {"K": self.K.tolist(), "world_to_camera": self.world_to_camera.tolist(),
-                "width_px": self.width_px, "height_px": self.height_px,
-                "fps": self.fps, "n_frames": self.n_frames}
-
-
-def look_at_camera(eye: Iterable[float], target: Iterable[float], *, focal_px: float = 560.0,
-                   width_px: int = 640, height_px: int = 480, fps: float = 30.0,
-                   n_frames: int = 90) -> Camera:
-    """A camera at `eye` looking at `target` with the world's z axis up in the image."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    fwd = target - eye
-    fwd /= np.linalg.norm(fwd)
-    right = np.cross(fwd, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(fwd, right)
-    r = np.stack([right, down, fwd])  # rows: camera axes in world
-    m = np.eye(4)
-    m[:3, :3] = r
-    m[:3, 3] = -r @ eye
-    k = np.array([[focal_px, 0, width_px / 2], [0, focal_px, height_px / 2], [0, 0, 1.0]])
-    return Camera(k, m, width_px, height_px, fps, n_frames)
-
-
-def default_camera(fps: float = 30.0, n_frames: int = 90) -> Camera:
-    """The dataset's camera: at the side of the ramp, 1.2 m away, slightly above."""
-    return look_at_camera((-0.2, -1.2, 0.3), (-0.2, 0.0, 0.16), fps=fps, n_frames=n_frames)
-
-
-@dataclass(frozen=True)
 class Scene:
     ramp: Ramp
     objects: tuple[SceneObject, ...]
@@ -320,55 +263,9 @@ class Scene:
 
 # -- parsing with field-named errors ---------------------------------------------------
 
-def _get(d: dict, key: str, path: str, default: Any = ...) -> Any:
-    if not isinstance(d, dict):
-        raise SceneError(f"{path}: expected an object")
-    if key not in d:
-        if default is ...:
-            raise SceneError(f"{path}.{key}: missing".lstrip("."))
-        return default
-    return d[key]
-
-
-def _num(d: dict, key: str, path: str, default: Any = ..., lo: float = -math.inf, hi: float = math.inf,
-         lo_open: bool = False, integer: bool = False) -> float:
-    v = _get(d, key, path, default)
-    where = f"{path}.{key}".lstrip(".")
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise SceneError(f"{where}: expected a number, got {v!r}")
-    if integer and int(v) != v:
-        raise SceneError(f"{where}: expected an integer, got {v!r}")
-    if v < lo or v > hi or (lo_open and v == lo):
-        bound = f"({lo}, {hi}]" if lo_open else f"[{lo}, {hi}]"
-        raise SceneError(f"{where}: {v} is outside {bound}")
-    return int(v) if integer else float(v)
-
-
-def _pair(d: dict, key: str, path: str, default: Any) -> tuple[float, float]:
-    v = _get(d, key, path, default)
-    where = f"{path}.{key}".lstrip(".")
-    if (not isinstance(v, (list, tuple)) or len(v) != 2
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
-            or v[0] > v[1]):
-        raise SceneError(f"{where}: expected [low, high] with low <= high, got {v!r}")
-    return float(v[0]), float(v[1])
-
-
-def _matrix(d: dict, key: str, path: str, shape: tuple[int, int]) -> np.ndarray:
-    v = _get(d, key, path)
-    where = f"{path}.{key}".lstrip(".")
-    try:
-        a = np.asarray(v, dtype=float)
-    except (TypeError, ValueError):
-        a = None
-    if a is None or a.shape != shape or not np.all(np.isfinite(a)):
-        raise SceneError(f"{where}: expected a {shape[0]}x{shape[1]} matrix of numbers")
-    return a
-
-
 def _shape(d: dict, path: str) -> Shape:
-    t = _get(d, "type", path)
-    size = _get(d, "size_m", path)
+    t = field_value(d, "type", path)
+    size = field_value(d, "size_m", path)
     if not isinstance(size, list) or len(size) != 3 or not all(
             isinstance(x, (int, float)) and not isinstance(x, bool) for x in size):
         raise SceneError(f"{path}.size_m: expected three numbers (metres), got {size!r}")
@@ -381,82 +278,75 @@ def _shape(d: dict, path: str) -> Shape:
 
 def _object(d: dict, i: int) -> SceneObject:
     path = f"objects[{i}]"
-    role = _get(d, "role", path, "ramp" if i == 0 else "target")
+    role = field_value(d, "role", path, "ramp" if i == 0 else "target")
     want = "ramp" if i == 0 else "target"
     if role != want:
         raise SceneError(f"{path}.role: object {i} must be the {want} object, got {role!r}")
-    name = _get(d, "name", path, "ramp_object" if i == 0 else "target")
+    name = field_value(d, "name", path, "ramp_object" if i == 0 else "target")
     if not isinstance(name, str) or not name:
         raise SceneError(f"{path}.name: expected a non-empty string")
-    material = _get(d, "material", path, None)
+    material = field_value(d, "material", path, None)
     if material is not None and not isinstance(material, str):
         raise SceneError(f"{path}.material: expected a string")
     common = dict(
-        name=name, role=role, shape=_shape(_get(d, "shape", path), f"{path}.shape"),
-        mass_kg=_num(d, "mass_kg", path, lo=0, lo_open=True),
-        friction=_num(d, "friction", path, lo=0, hi=10),
-        restitution=_num(d, "restitution", path, 0.0, lo=0, hi=1),
+        name=name, role=role, shape=_shape(field_value(d, "shape", path), f"{path}.shape"),
+        mass_kg=number(d, "mass_kg", path, lo=0, lo_open=True),
+        friction=number(d, "friction", path, lo=0, hi=10),
+        restitution=number(d, "restitution", path, 0.0, lo=0, hi=1),
         material=material)
     if role == "ramp":
-        return SceneObject(**common, offset_units=_num(d, "offset_units", path, 0, integer=True))
-    kind = _get(d, "kind", path, "cardboard")
+        return SceneObject(**common, offset_units=number(d, "offset_units", path, 0, integer=True))
+    kind = field_value(d, "kind", path, "cardboard")
     if kind not in TARGET_KINDS:
         raise SceneError(f"{path}.kind: expected one of {', '.join(TARGET_KINDS)}, got {kind!r}")
-    return SceneObject(**common, kind=kind, distance_m=_num(d, "distance_m", path, lo=0))
-
-
-def _camera(d: dict) -> Camera:
-    p = "camera"
-    k = _matrix(d, "K", p, (3, 3))
-    m = _matrix(d, "world_to_camera", p, (4, 4))
-    r = m[:3, :3]
-    if not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or not np.allclose(m[3], [0, 0, 0, 1]):
-        raise SceneError("camera.world_to_camera: expected a rigid transform (rotation + translation)")
-    if k[0, 0] <= 0 or k[1, 1] <= 0:
-        raise SceneError("camera.K: focal lengths must be positive")
-    return Camera(k, m, _num(d, "width_px", p, lo=1, integer=True), _num(d, "height_px", p, lo=1, integer=True),
-                  _num(d, "fps", p, lo=0, lo_open=True), _num(d, "n_frames", p, lo=1, integer=True))
+    return SceneObject(**common, kind=kind, distance_m=number(d, "distance_m", path, lo=0))
 
 
 def scene_from_json(data: Any) -> Scene:
     if not isinstance(data, dict):
         raise SceneError("expected a JSON object at the top level")
-    version = _get(data, "version", "", SCENE_VERSION)
+    version = field_value(data, "version", "", SCENE_VERSION)
     if version != SCENE_VERSION:
         raise SceneError(f"version: this Galileo reads scene version {SCENE_VERSION}, got {version!r}")
-    rd = _get(data, "ramp", "")
-    ramp = Ramp(angle_deg=_num(rd, "angle_deg", "ramp", lo=0, hi=59.9),
-                length_m=_num(rd, "length_m", "ramp", 0.9, lo=0, lo_open=True),
-                width_m=_num(rd, "width_m", "ramp", 0.3, lo=0, lo_open=True),
-                thickness_m=_num(rd, "thickness_m", "ramp", 0.02, lo=0, lo_open=True))
-    objs = _get(data, "objects", "")
+    rd = field_value(data, "ramp", "")
+    ramp = Ramp(angle_deg=number(rd, "angle_deg", "ramp", lo=0, hi=59.9),
+                length_m=number(rd, "length_m", "ramp", 0.9, lo=0, lo_open=True),
+                width_m=number(rd, "width_m", "ramp", 0.3, lo=0, lo_open=True),
+                thickness_m=number(rd, "thickness_m", "ramp", 0.02, lo=0, lo_open=True))
+    objs = field_value(data, "objects", "")
     if not isinstance(objs, list) or not 1 <= len(objs) <= 2:
         raise SceneError("objects: expected a list of one (ramp object) or two (ramp object, target) objects")
     objects = tuple(_object(o, i) for i, o in enumerate(objs))
-    pd = _get(data, "priors", "", {})
+    pd = field_value(data, "priors", "", {})
     base = Priors()
-    bounds = {k: _pair(pd, k, "priors", list(v)) for k, v in base.bounds.items()}
+    bounds = {k: pair(pd, k, "priors", list(v)) for k, v in base.bounds.items()}
     for k, (lo, hi) in bounds.items():
         if k.startswith("m") and lo <= 0:
             raise SceneError(f"priors.{k}: mass bounds must be positive")
         if k.startswith("k") and lo < 0:
             raise SceneError(f"priors.{k}: friction bounds must be >= 0")
-    off = _pair(pd, "offset_units", "priors", list(base.offset_units))
-    types = _get(pd, "shape_types", "priors", list(base.shape_types))
+    off = pair(pd, "offset_units", "priors", list(base.offset_units))
+    types = field_value(pd, "shape_types", "priors", list(base.shape_types))
     if not isinstance(types, list) or not types or any(t not in SHAPE_TYPES for t in types):
         raise SceneError(f"priors.shape_types: expected a non-empty list from {', '.join(SHAPE_TYPES)}")
     priors = Priors(bounds=bounds, offset_units=(int(off[0]), int(off[1])), shape_types=tuple(types),
-                    size_m=_pair(pd, "size_m", "priors", list(base.size_m)))
-    cam = _get(data, "camera", "", None)
+                    size_m=pair(pd, "size_m", "priors", list(base.size_m)))
+    cam = field_value(data, "camera", "", None)
     scene = Scene(
-        ramp=ramp, objects=objects, camera=_camera(cam) if cam is not None else None,
-        unit_m=_num(data, "unit_m", "", 0.02, lo=0, lo_open=True),
-        start_units=_num(data, "start_units", "", 30.0, lo=0),
-        sim_hz=_num(data, "sim_hz", "", 240, lo=1, integer=True),
-        gravity_mps2=_num(data, "gravity_mps2", "", 9.81, lo=0),
+        ramp=ramp, objects=objects, camera=camera_from_json(cam) if cam is not None else None,
+        unit_m=number(data, "unit_m", "", 0.02, lo=0, lo_open=True),
+        start_units=number(data, "start_units", "", 30.0, lo=0),
+        sim_hz=number(data, "sim_hz", "", 240, lo=1, integer=True),
+        gravity_mps2=number(data, "gravity_mps2", "", 9.81, lo=0),
         priors=priors)
     scene.validate()
     return scene
+
+
+def default_camera(fps: float = 30.0, n_frames: int = 90) -> Camera:
+    """The dataset's camera: at the side of the ramp, 1.2 m away, slightly above."""
+    return look_at_camera((-0.2, -1.2, 0.3), (-0.2, 0.0, 0.16), fps=fps, n_frames=n_frames)
+
 
 
 # -- the default scene ------------------------------------------------------------------

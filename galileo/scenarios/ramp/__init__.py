@@ -1,0 +1,1 @@
+"""The ramp scenario of Galileo (NIPS 2015): an object slides down a ramp, maybe into a target."""

@@ -1,0 +1,118 @@
+"""The only door to pybullet: the module imported without its "pybullet build time" banner
+(C-level stderr), the process's single DIRECT client (a forked child connects its own,
+never its parent's), a per-process scratch folder for mesh files, and collision and
+visual shapes made from `galileo.shapes` shapes."""
+from __future__ import annotations
+
+import ctypes
+import math
+import multiprocessing.util as mp_util
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any, Callable
+
+import trimesh
+
+from ..shapes import Shape, render_mesh, torus_convex_parts
+
+
+def _import_quietly():
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no real stdout (e.g. captured): import as is
+        import pybullet
+        return pybullet
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        import pybullet
+        try:  # the banner sits in C's stdio buffer: flush it into /dev/null
+            ctypes.CDLL(None).fflush(None)
+        except (OSError, AttributeError):
+            pass
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+    return pybullet
+
+
+pb = _import_quietly()
+
+
+# -- the process's single pybullet client -----------------------------------------------
+
+_client: int | None = None
+_client_pid: int | None = None
+_world = None          # the world built last in this process's client (see `cached_world`)
+_mesh_dir: Path | None = None
+_mesh_dir_pid: int | None = None
+
+
+def client() -> int:
+    """The process's pybullet client (a forked child connects its own, never its parent's)."""
+    global _client, _client_pid, _world
+    if _client is None or _client_pid != os.getpid() or not pb.isConnected(_client):
+        _client = pb.connect(pb.DIRECT)
+        _client_pid = os.getpid()
+        _world = None
+    return _client
+
+
+def cached_world(key, build: Callable[[], Any]):
+    """The world built for `key` in this process's client, built by `build()` (which resets
+    the simulation) when the last world built had another key. One world lives at a time:
+    worlds are cheap to keep and costly (milliseconds) to build, and a sampler asks for the
+    same one thousands of times."""
+    global _world
+    cid = client()
+    if _world is None or _world.key != key or _world.cid != cid:
+        _world = None
+        _world = build()
+    return _world
+
+
+def scratch_dir() -> Path:
+    """This process's folder for mesh and texture files (a forked child makes its own: two
+    processes writing the same file name made the renderer read half-written textures)."""
+    global _mesh_dir, _mesh_dir_pid
+    if _mesh_dir is None or _mesh_dir_pid != os.getpid():
+        _mesh_dir = Path(tempfile.mkdtemp(prefix="galileo-meshes-"))
+        _mesh_dir_pid = os.getpid()
+        # (atexit handlers do not run in multiprocessing's forked workers; its finalizers do,
+        # in the parent too, and a child drops the ones it inherited)
+        mp_util.Finalize(None, shutil.rmtree, args=(str(_mesh_dir),), kwargs={"ignore_errors": True},
+                         exitpriority=0)
+    return _mesh_dir
+
+
+def collision_shape(shape: Shape, cid: int) -> int:
+    """A Bullet collision shape for `shape` in its object frame (see `galileo.shapes`)."""
+    sx, sy, sz = shape.size_m
+    if shape.type == "box":
+        return pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[sx / 2, sy / 2, sz / 2], physicsClientId=cid)
+    if shape.type == "cylinder":
+        # Bullet's cylinder runs along z; ours lies along x
+        q = pb.getQuaternionFromEuler([0, math.pi / 2, 0])
+        return pb.createCollisionShape(pb.GEOM_CYLINDER, radius=sy / 2, height=sx,
+                                       collisionFrameOrientation=q, physicsClientId=cid)
+    files = []
+    d = scratch_dir()
+    for i, pts in enumerate(torus_convex_parts(shape)):
+        f = d / f"torus_{sx:.6f}_{sz:.6f}_{i}.obj"
+        if not f.exists():
+            trimesh.convex.convex_hull(pts).export(f)
+        files.append(str(f))
+    n = len(files)
+    return pb.createCollisionShapeArray([pb.GEOM_MESH] * n, fileNames=files, meshScales=[[1, 1, 1]] * n,
+                                        physicsClientId=cid)
+
+
+def visual_shape(shape: Shape, cid: int) -> int:
+    m = render_mesh(shape)
+    return pb.createVisualShape(pb.GEOM_MESH, vertices=m.vertices.tolist(), indices=m.indices.tolist(),
+                                uvs=m.uvs.tolist(), normals=m.normals.tolist(), physicsClientId=cid)
