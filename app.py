@@ -72,9 +72,8 @@ def run(args) -> int:
     import numpy as np
 
     from galileo.errors import GalileoError
-    from galileo.inference import burn_in
-    from galileo.scenarios.ramp.scene import Scene
-    from galileo.tracking import track
+    from galileo import registry
+    from galileo.runner import burn_in
     from galileo.video import read_video
     from ui.controller import Controller
     from ui.rerun_log import RRD_NAME, RerunLogger
@@ -99,9 +98,9 @@ def run(args) -> int:
             folder = ensure_demo()
             video_path, scene_path = folder / "video.mp4", folder / "scene.json"
             name = args.name or "demo"
-        scene = Scene.load(scene_path)
+        scene = registry.load_scene(scene_path)
         print(f"tracking {video_path} ...")
-        tracks = track(video_path, scene)
+        tracks = registry.of(scene).track(video_path, scene)
         session = new_session_dir(SESSIONS, name)
         import shutil
 

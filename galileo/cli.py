@@ -25,22 +25,24 @@ def _parse_set(items: list[str]) -> dict[str, float]:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from .scenarios.ramp.physics import Simulator
-    from .scenarios.ramp.scene import Scene, default_scene
+    from . import registry
 
     if args.scene:
         quick = [f for f in ("angle_deg", "friction", "mass", "target") if getattr(args, f) is not None]
         if quick:
             raise GalileoError(f"--{quick[0].replace('_', '-')} is for the quick form; with --scene use --set")
-        scene = Scene.load(args.scene)
-    else:
+        scene = registry.load_scene(args.scene)
+    else:  # the quick form: the ramp's standard geometry
+        from .scenarios.ramp.scene import default_scene
+
         scene = default_scene(args.angle_deg if args.angle_deg is not None else 20.0,
                               mass_kg=args.mass if args.mass is not None else 0.5,
                               friction=args.friction if args.friction is not None else 0.2,
                               target=args.target or "none")
+    scenario = registry.of(scene)
     values = _parse_set(args.set)
     if values:
-        scene = scene.with_values(values)
+        scene = scenario.with_values(scene, values)
     fps = args.fps or (scene.camera.fps if scene.camera else 30.0)
     if args.frames is not None:
         n = args.frames
@@ -52,7 +54,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         n = int(round(2.0 * fps)) + 1
     if n < 1:
         raise GalileoError("need at least one frame")
-    traj = Simulator(scene).run(n, fps=fps)
+    traj = scenario.simulate(scene, n, fps=fps)
     traj.save(args.out)
     print(f"wrote {n} frames of {len(traj.names)} object(s) at {fps:g} fps to {args.out}")
     return 0
@@ -67,11 +69,10 @@ def cmd_dataset(args: argparse.Namespace) -> int:
 
 
 def cmd_track(args: argparse.Namespace) -> int:
-    from .scenarios.ramp.scene import Scene
-    from .tracking import track
+    from . import registry
 
-    scene = Scene.load(args.scene)
-    tracks = track(args.video, scene, progress=not args.quiet, debug_video=args.debug_video)
+    scene = registry.load_scene(args.scene)
+    tracks = registry.of(scene).track(args.video, scene, progress=not args.quiet, debug_video=args.debug_video)
     tracks.save(args.out)
     summary = ", ".join(f"{o.name} ({o.role}): {o.shape.type}, seen in {int(o.visible.sum())}/{len(o.visible)} frames"
                         for o in tracks.objects)
@@ -82,30 +83,31 @@ def cmd_track(args: argparse.Namespace) -> int:
 
 
 def cmd_infer(args: argparse.Namespace) -> int:
-    from .inference import InferenceConfig, infer
-    from .mcmc import Proposal
-    from .scenarios.ramp.scene import Scene
+    from . import registry
     from .datatypes import Tracks
-    from .tracking import track
+    from .runner import RunConfig, infer
 
     if args.chains < 1 or args.sweeps < 1:  # before tracking, which takes a while
         raise GalileoError("--chains and --sweeps must be at least 1")
-    if args.sigma <= 0:
+    if args.sigma is not None and not args.sigma > 0:
         raise GalileoError("--sigma must be positive")
-    scene = Scene.load(args.scene)
+    cfg = RunConfig(chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=args.workers,
+                    noise=args.sigma, speedups=not args.no_speedups, narrow=args.narrow, broad=args.broad,
+                    broad_every=args.broad_every)
+    cfg.check()
+    scene = registry.load_scene(args.scene)
+    scenario = registry.of(scene)
+    try:
+        cfg.settings(scenario.latents(scene), scenario.noise)
+    except ValueError as e:
+        raise GalileoError(str(e)) from None
     if args.tracks:
         tracks = Tracks.load(args.tracks)
     else:
-        tracks = track(args.video, scene, progress=not args.quiet)
-    cfg = InferenceConfig(chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=args.workers,
-                          sigma_mps=args.sigma, speedups=not args.no_speedups,
-                          proposal=Proposal(args.narrow, args.broad, args.broad_every))
+        tracks = scenario.track(args.video, scene, progress=not args.quiet)
     result = infer(scene, tracks, cfg, progress=not args.quiet)
     npz = result.save(args.out)
-    m = result.map
-    parts = ", ".join(f"{k} = {v:.3f}" for k, v in m.items())
-    ratio = result.mass_ratio()
-    print(f"MAP: {parts}" + (f", m1/m2 = {ratio:.2f}" if ratio is not None else ""))
+    print(f"MAP: {scenario.summary(result.map)}")
     print(f"wrote {args.out} and {npz} ({result.timing_s['wall']:.1f} s, {result.steps} physics steps)")
     return 0
 
@@ -113,18 +115,12 @@ def cmd_infer(args: argparse.Namespace) -> int:
 def cmd_predict(args: argparse.Namespace) -> int:
     import json
 
-    from .jsonio import write_json
-    from .scenarios.ramp.predict import Prediction
-    from .scenarios.ramp.scene import Scene
+    from . import registry
+    from .jsonio import read_json, write_json
 
-    pred = Prediction(args.result)
-    out: dict = {}
-    if args.angle_deg is not None:
-        out["will_it_move"] = pred.will_it_move(args.angle_deg)
-    if args.target or args.scene:
-        out["target"] = pred.target_outcome(Scene.load(args.scene) if args.scene else None)
-    if not out:
-        raise GalileoError("nothing to predict: give --angle-deg and/or --target (or --scene)")
+    d = read_json(args.result, "result file")
+    scenario = registry.get(d.get("scenario", registry.DEFAULT) if isinstance(d, dict) else registry.DEFAULT)
+    out = scenario.predict(args.result, {"angle_deg": args.angle_deg, "target": args.target, "scene": args.scene})
     text = json.dumps(out, indent=1)
     if args.out:
         write_json(args.out, out)
@@ -135,14 +131,35 @@ def cmd_predict(args: argparse.Namespace) -> int:
 def cmd_experiment(args: argparse.Namespace) -> int:
     import json
 
+    from .runner import RunConfig
     from .scenarios.ramp.experiments import run_experiments
-    from .inference import InferenceConfig
 
-    cfg = InferenceConfig(chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=args.workers)
+    cfg = RunConfig(chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=args.workers)
+    cfg.check()
     report = run_experiments(args.dataset, cfg, progress=not args.quiet, out=args.out)
     summary = dict(report["summary"])
     summary.pop("k1_errors", None)
     print(json.dumps(summary, indent=1))
+    return 0
+
+
+def cmd_scenarios(args: argparse.Namespace) -> int:
+    import json
+
+    from . import registry
+
+    described = [registry.get(n).describe() for n in registry.names()]
+    if args.json:
+        print(json.dumps(described, indent=1))
+        return 0
+    for d in described:
+        print(f"{d['name']}: {d['description']}")
+        noise = d["noise"]
+        print(f"  noise  {noise['name']} = {noise['default']:g} {noise['unit']}")
+        for lat in d["latents"]:
+            lo, hi = lat["bounds"]
+            print(f"  {lat['name']:<8} [{lat['unit']}]  prior U({lo:g}, {hi:g})  proposal "
+                  f"U(+-{lat['narrow']:g}), broad U(+-{lat['broad']:g})  {lat['doc']}")
     return 0
 
 
@@ -189,10 +206,11 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--sweeps", type=int, default=75)
     i.add_argument("--seed", type=int, default=0)
     i.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
-    i.add_argument("--sigma", type=float, default=0.05, help="likelihood SD of a velocity component, m/s")
-    i.add_argument("--narrow", type=float, default=0.05, help="half-width of the usual proposal")
-    i.add_argument("--broad", type=float, default=0.5, help="half-width of the periodic broad proposal")
-    i.add_argument("--broad-every", type=int, default=20, help="every how many sweeps the broad one is used")
+    i.add_argument("--sigma", type=float, default=None,
+                   help="likelihood noise SD (default: the scenario's; the ramp's is 0.05 m/s per velocity component)")
+    i.add_argument("--narrow", type=float, help="half-width of the usual proposal (default: the latents', 0.05)")
+    i.add_argument("--broad", type=float, help="half-width of the periodic broad proposal (default: the latents', 0.5)")
+    i.add_argument("--broad-every", type=int, help="every how many sweeps the broad one is used (default 20)")
     i.add_argument("--no-speedups", action="store_true", help="plain path: full simulations (for checks)")
     i.add_argument("--out", required=True, help="result JSON (the sample record goes beside it as .samples.npz)")
     i.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -215,6 +233,10 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", required=True, help="report JSON (rewritten after every video)")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=cmd_experiment)
+
+    c = sub.add_parser("scenarios", help="list the scenarios with their latents, units and default priors")
+    c.add_argument("--json", action="store_true", help="as JSON")
+    c.set_defaults(func=cmd_scenarios)
     return p
 
 

@@ -29,7 +29,6 @@ def free_port() -> int:
 
 def demo_viewer(demo_dir, session_dir, *, chains: int, seed: int, sweeps: int):
     """A controller with `sweeps` rounds done and a viewer on it, for the demo video."""
-    from galileo.scenarios.ramp.likelihood import scene_for_inference
     from galileo.scenarios.ramp.scene import Scene
     from galileo.tracking import track
     from galileo.video import read_video
@@ -41,4 +40,4 @@ def demo_viewer(demo_dir, session_dir, *, chains: int, seed: int, sweeps: int):
     ctrl = Controller(scene, tracks, chains=chains, seed=seed, workers=1, session_dir=session_dir)
     ctrl.run_sweeps(sweeps)
     video, _ = read_video(demo_dir / "video.mp4")
-    return ctrl, Viewer(ctrl, scene_for_inference(scene, tracks), tracks, video, port=free_port())
+    return ctrl, Viewer(ctrl, ctrl.likelihood_scene, tracks, video, port=free_port())

@@ -11,12 +11,14 @@ import numpy as np
 import pytest
 
 from galileo.errors import GalileoError
-from galileo.inference import InferenceConfig, infer
+from galileo.runner import RunConfig as InferenceConfig
+from galileo.runner import infer
 from galileo.scenarios.ramp.likelihood import VelocityLikelihood
 from galileo.scenarios.ramp.scene import Scene
 from galileo.tracking import track
 from ui import session as sess
-from ui.controller import Controller, Settings
+from galileo.runner import Settings
+from ui.controller import Controller
 
 NAMES = ("m1_kg", "k1", "m2_kg", "k2")
 
@@ -192,7 +194,7 @@ def test_set_sigma_applies_from_the_next_sweep(demo, make):
     s, ll = ctl.samples(0), ctl.logliks(0)
     for k in range(4):  # logliks as VelocityLikelihood computes them under each sweep's sigma
         assert ll[k] == lik_at(demo, 0.05 if k < 2 else 0.1, s[k]), k
-    assert ctl.settings.sigma_mps == 0.1 and ctl.status()["settings"]["sigma_mps"] == 0.1
+    assert ctl.settings.noise == 0.1 and ctl.status()["settings"]["sigma_mps"] == 0.1
     for bad in (0, -1, float("inf"), "x"):
         with pytest.raises(ValueError, match="sigma"):
             ctl.set_sigma(bad)
@@ -263,7 +265,7 @@ def test_settings_are_checked(demo):
     with pytest.raises(ValueError, match="m1_kg"):
         Controller(*demo, chains=1, workers=1, settings=Settings({**bounds, "m1_kg": (0.0, 1.0)}))
     with pytest.raises(ValueError, match="sigma"):
-        Controller(*demo, chains=1, workers=1, settings=Settings(bounds, sigma_mps=0.0))
+        Controller(*demo, chains=1, workers=1, settings=Settings(bounds, noise=0.0))
 
 
 # -- sessions ---------------------------------------------------------------------------------------------
@@ -334,7 +336,7 @@ def test_a_crash_between_two_files_loads_the_last_complete_state(make, tmp_path)
     back = Controller.load(tmp_path / "s", workers=1)
     try:
         assert [len(back.samples(c)) for c in (0, 1)] == [2, 2]
-        assert [e["kind"] for e in back.events] == ["init"] and back.settings.sigma_mps == 0.05
+        assert [e["kind"] for e in back.events] == ["init"] and back.settings.noise == 0.05
         back.run_sweeps(2)
         whole = make(chains=2, seed=5)
         whole.run_sweeps(4)

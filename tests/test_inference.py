@@ -8,8 +8,9 @@ import sys
 import numpy as np
 import pytest
 
-from galileo import inference
-from galileo.inference import InferenceConfig, InferenceResult, infer, load_samples
+from galileo.results import InferenceResult, load_samples
+from galileo.runner import RunConfig as InferenceConfig
+from galileo.runner import infer
 from galileo.scenarios.ramp.likelihood import VelocityLikelihood
 from galileo.scenarios.ramp.scene import Scene, scene_from_json
 from galileo.tracking import track
@@ -45,7 +46,9 @@ def _no_prefix_reuse(monkeypatch):
     class NoReuse(VelocityLikelihood):
         def __init__(self, *a, **k):
             super().__init__(*a, **{**k, "cache_size": 0})
-    monkeypatch.setattr(inference, "VelocityLikelihood", NoReuse)
+    import galileo.scenarios.ramp.likelihood as ramp_likelihood
+
+    monkeypatch.setattr(ramp_likelihood, "VelocityLikelihood", NoReuse)
 
 
 # -- the speed-ups give the plain path's decisions ----------------------------------------------
@@ -112,8 +115,8 @@ def test_prefix_reuse_equals_a_full_simulation(demo):
         assert v_fast == plain(x)[0]            # bit for bit
 
     x2 = x0 * [1.3, 1.0, 1.25, 0.7]
-    pos_f, vel_f = fast.simulated_motion(x2)    # resumes too: frames of phase A are NaN
-    pos_p, vel_p = plain.simulated_motion(x2)
+    pos_f, vel_f, _ = fast._evaluate(fast.values_of(x2), -np.inf, record=True)[2]   # resumes: phase A NaN
+    pos_p, vel_p = plain.motion(x2).position_m, plain.motion(x2).velocity_mps
     missing = np.isnan(pos_f).any(axis=(0, 2))
     assert np.array_equal(np.nonzero(missing)[0], np.arange(prefix.first_b))
     assert not np.isnan(pos_p).any()
@@ -159,7 +162,8 @@ def test_phase_a_values_change_nothing_against_bullet(demo):
     fast = VelocityLikelihood(scene, tracks, speedups=True)
     spf = plain.spf
     for x in (x0, x0 * [2.0, 0.9, 0.5, 1.5]):
-        pos_l, vel_l = plain.simulated_motion(x)
+        m = plain.motion(x)
+        pos_l, vel_l = m.position_m, m.velocity_mps
         fast(x)
         prefix = fast._prefixes[(x[1],)]
         switch_step = (prefix.first_b - 1) * spf + prefix.substeps
@@ -209,7 +213,8 @@ def test_rest_cutoff_takes_fewer_steps_with_the_same_value(demo):
     for k1 in (0.15, 0.2, 0.1, 0.25):
         x = np.array([x0[0], k1, 1.0, 1.0])
         plain = VelocityLikelihood(scene, tracks, speedups=False)
-        pos, vel = plain.simulated_motion(x)
+        m = plain.motion(x)
+        pos, vel = m.position_m, m.velocity_mps
         still = np.all(vel == 0.0, axis=(0, 2))
         rest = next((f for f in range(1, plain.n_frames) if still[f:].all()), None)
         if rest is not None and rest < plain.n_frames - 5 and pos[0, rest, 0] - pos[0, 0, 0] > 0.2:

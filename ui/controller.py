@@ -1,17 +1,16 @@
 """Live, steerable inference: the API the browser app's viewer and rerun logger call.
 
-The chains are those of `galileo.inference.infer` (the same kernel, `galileo.mcmc.sweep`, the
-same random streams and starts), run round by round so that they can be watched and steered:
+The chains are those of the one chain runner, `galileo.runner` (the same task function,
+`run_task`, the same random streams and starts, for any scenario), run round by round so
+that they can be watched and steered:
 
-* A round does one sweep of every running chain in worker processes (fork; each worker
-  builds the `VelocityLikelihood` once). The parent holds every chain's state (position,
-  logdensity, sweep count, numpy bit-generator state) and sends it with the task, so a chain's
-  random stream is the same whatever worker runs it: chain c starts from
-  SeedSequence(seed, spawn_key=(c,)) (`galileo.mcmc.chain_rng`) at
-  `galileo.inference.initial_positions(bounds, c + 1, seed)[c]`, and a seed gives the batch
-  runner's chains bit for bit, for any number of workers.
+* A round sends one sweep of every running chain to the executor (`galileo.runner.LocalPool`
+  by default: forked workers, each building the scenario's likelihood once). The parent holds
+  every chain's state (position, logdensity, sweep count, numpy bit-generator state) and sends
+  it with the task, so a chain's random stream is the same whatever worker runs it, and a seed
+  gives the batch runner's chains bit for bit, for any number of workers.
 * `start()` runs rounds in a background thread, `run_sweeps(n)` runs n rounds synchronously.
-* Steering (`set_bounds`, `set_sigma`, `set_widths`, `pause`, `resume`, `add_chains`,
+* Steering (`set_bounds`, `set_noise`, `set_widths`, `pause`, `resume`, `add_chains`,
   `remove_chain`, `reset_chain`, `set_chain`) is thread-safe and applies between rounds: a
   round in flight finishes with the old settings, and the change, queued, applies right after
   it. Each change is recorded as an event
@@ -21,7 +20,7 @@ same random streams and starts), run round by round so that they can be watched 
        "chain_sweeps": {"<chain>": that chain's sweep count then, for every active chain}}
 
   so a chain's samples from index chain_sweeps[c] on were drawn under the change.
-* A chain whose position or target changed (sigma changed, a bound shrank past it, reset or
+* A chain whose position or target changed (noise changed, a bound shrank past it, reset or
   set by hand) has its logdensity recomputed in the worker at the start of its next sweep,
   before proposing; a new chain's is computed there too (as `galileo.mcmc.init` does).
 * Listeners `fn(kind, payload)` are called from the thread that runs the rounds (outside the
@@ -39,158 +38,28 @@ from __future__ import annotations
 import copy
 import logging
 import math
-import multiprocessing as mp
 import os
 import threading
 import time
 from collections import deque
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from galileo.errors import GalileoError
-from galileo.inference import burn_in, initial_positions
-from galileo.scenarios.ramp.likelihood import SIGMA_MPS, VelocityLikelihood, scene_for_inference
-from galileo.mcmc import MHState, Proposal, chain_rng
-from galileo.mcmc import sweep as mh_sweep
-from galileo.scenarios.ramp.scene import Scene, scene_from_json
+from galileo import registry
 from galileo.datatypes import Tracks
+from galileo.errors import GalileoError
+from galileo.latents import as_number, by_name, check_bounds, check_noise, check_widths
+from galileo.mcmc import chain_rng
+from galileo.results import kept_draws, rhat_ess
+from galileo.runner import PROPOSAL_FIELDS, ChainTask, Problem, Settings, initial_positions, run_task
 
 from . import session as sess
 
 log = logging.getLogger(__name__)
 
 Listener = Callable[[str, dict], None]
-
-
-# -- settings -----------------------------------------------------------------------------------------
-
-@dataclass
-class Settings:
-    bounds: dict[str, tuple[float, float]]   # prior bounds per latent (uniform priors)
-    sigma_mps: float = SIGMA_MPS
-    narrow: float = 0.05
-    broad: float = 0.5
-    broad_every: int = 20
-
-    def copy(self) -> "Settings":
-        return Settings({k: (float(v[0]), float(v[1])) for k, v in self.bounds.items()},
-                        float(self.sigma_mps), float(self.narrow), float(self.broad), int(self.broad_every))
-
-    def proposal(self) -> Proposal:
-        return Proposal(float(self.narrow), float(self.broad), int(self.broad_every))
-
-    def to_json(self) -> dict:
-        return {"bounds": {k: [float(v[0]), float(v[1])] for k, v in self.bounds.items()},
-                "sigma_mps": float(self.sigma_mps), "sigma_is": "standard deviation (m/s)",
-                "narrow": float(self.narrow), "broad": float(self.broad), "broad_every": int(self.broad_every)}
-
-    @classmethod
-    def from_json(cls, d: dict, names) -> "Settings":
-        """Parse and check (ValueError on a bad value)."""
-        bounds = {n: _check_bound(n, *d["bounds"][n], names=names) for n in names}
-        extra = set(d["bounds"]) - set(names)
-        if extra:
-            raise ValueError(f"bounds for unknown latents {sorted(extra)}")
-        sigma = _check_sigma(d["sigma_mps"])
-        return cls(bounds, sigma, *_check_widths(d["narrow"], d["broad"], d["broad_every"]))
-
-
-def _number(x, what: str) -> float:
-    if isinstance(x, bool):
-        raise ValueError(f"{what}: expected a number, got {x!r}")
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what}: expected a number, got {x!r}") from None
-    if not math.isfinite(v):
-        raise ValueError(f"{what}: expected a finite number, got {x!r}")
-    return v
-
-
-def _check_bound(name: str, lo, hi, *, names) -> tuple[float, float]:
-    if name not in names:
-        raise ValueError(f"unknown latent {name!r}; expected one of {', '.join(names)}")
-    lo, hi = _number(lo, f"{name} low bound"), _number(hi, f"{name} high bound")
-    if not lo < hi:
-        raise ValueError(f"{name}: the low bound ({lo:g}) must be below the high bound ({hi:g})")
-    if name.endswith("_kg") and lo <= 0:
-        raise ValueError(f"{name}: a mass must be > 0 kg, got a low bound of {lo:g}")
-    if not name.endswith("_kg") and lo < 0:
-        raise ValueError(f"{name}: a friction coefficient must be >= 0, got a low bound of {lo:g}")
-    return lo, hi
-
-
-def _check_sigma(sigma) -> float:
-    s = _number(sigma, "sigma_mps")
-    if s <= 0:
-        raise ValueError(f"sigma_mps must be > 0 m/s, got {s:g}")
-    return s
-
-
-def _check_widths(narrow, broad, broad_every) -> tuple[float, float, int]:
-    n, b = _number(narrow, "narrow"), _number(broad, "broad")
-    if n <= 0 or b <= 0:
-        raise ValueError(f"proposal widths must be > 0, got narrow={n:g} broad={b:g}")
-    e = _number(broad_every, "broad_every")
-    if e < 0 or e != int(e):
-        raise ValueError(f"broad_every must be an integer >= 0 (0: never broad), got {broad_every!r}")
-    return n, b, int(e)
-
-
-# -- worker side ----------------------------------------------------------------------------------------
-
-_worker: dict = {}
-
-
-def _worker_init(scene_json: dict, tracks_json: dict, sigma: float) -> None:
-    """Runs once in each worker: the likelihood (with the worker's own pybullet client)."""
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the app's to handle: it stops the pool
-    scene, tracks = scene_from_json(scene_json), Tracks.from_json(tracks_json)
-    _worker.update(scene=scene, tracks=tracks, lik=VelocityLikelihood(scene, tracks, sigma, speedups=True))
-
-
-def _worker_likelihood(sigma: float) -> VelocityLikelihood:
-    lik = _worker["lik"]
-    if lik.sigma_mps != sigma:
-        # Its saved prefixes hold terms scaled by the old sigma: a fresh likelihood (the old
-        # one's few saved world states stay behind in the worker's world, unused).
-        lik = _worker["lik"] = VelocityLikelihood(_worker["scene"], _worker["tracks"], sigma, speedups=True)
-    return lik
-
-
-def _ping(_=None) -> int:
-    return os.getpid()
-
-
-def _sweep_task(task: tuple) -> dict:
-    """One sweep of one chain, from the state the parent holds."""
-    chain, position, logdensity, sweep_count, rng_state, bounds, proposal, sigma = task
-    lik = _worker_likelihood(sigma)
-    steps0 = lik.steps
-    pos = np.asarray(position, float).copy()
-    evaluated = logdensity is None
-    if evaluated:  # a new chain, or its position / sigma changed
-        logdensity = float(lik(pos)[0])
-    bit_gen = getattr(np.random, rng_state["bit_generator"])()
-    bit_gen.state = rng_state
-    rng = np.random.Generator(bit_gen)
-    state, infos = mh_sweep(rng, MHState(pos, float(logdensity), int(sweep_count)), lik, bounds, proposal, True)
-    return {"chain": chain, "position": state.position, "logdensity": float(state.logdensity),
-            "sweep": int(state.sweep), "rng": bit_gen.state, "evaluated": evaluated,
-            "site": np.array([i.site for i in infos], np.int8),
-            "proposal": np.array([i.proposal for i in infos], float),
-            "proposal_loglik": np.array([i.logdensity for i in infos], float),
-            "accepted": np.array([i.accepted for i in infos], bool),
-            "early_stop": np.array([i.early_stop for i in infos], bool),
-            "width": np.array([i.width for i in infos], float),
-            "steps": lik.steps - steps0}
 
 
 # -- chain state -----------------------------------------------------------------------------------------
@@ -224,7 +93,7 @@ class _Buf:
         return self.n
 
 
-_PROPOSAL_FIELDS = {"site": (np.int8, False), "proposal": (float, True), "proposal_loglik": (float, False),
+PROPOSAL_FIELDS = {"site": (np.int8, False), "proposal": (float, True), "proposal_loglik": (float, False),
                     "accepted": (bool, False), "early_stop": (bool, False), "width": (float, False)}
 
 
@@ -240,7 +109,7 @@ class _Chain:
         self.rng_state = rng_state
         self.samples = _Buf(float, dim)
         self.logliks = _Buf(float)
-        self.proposals = {k: _Buf(t, dim if wide else None) for k, (t, wide) in _PROPOSAL_FIELDS.items()}
+        self.proposals = {k: _Buf(t, dim if wide else None) for k, (t, wide) in PROPOSAL_FIELDS.items()}
         self.best: tuple[int, float] | None = None   # (sample index, loglik) of the chain's best sample
 
     def note_best(self, first: int = 0) -> None:
@@ -261,28 +130,24 @@ class _Chain:
 class Controller:
     """Live multi-chain MH over Bullet with steering, listeners and recorded sessions."""
 
-    def __init__(self, scene: Scene, tracks: Tracks, *, chains: int = 16, seed: int = 0,
+    def __init__(self, scene, tracks: Tracks, *, chains: int = 16, seed: int = 0,
                  workers: int | None = None, settings: Settings | None = None,
-                 session_dir: str | Path | None = None, save_every_s: float = 1.0):
-        if int(chains) != chains or chains < 0:
+                 session_dir: str | Path | None = None, save_every_s: float = 1.0, executor=None):
+        """`executor`: anything with `map` (default: a `galileo.runner.LocalPool` of `workers`
+        processes, always separate processes: the viewer simulates in this one)."""
+        if isinstance(chains, bool) or int(chains) != chains or chains < 0:
             raise ValueError(f"chains must be an integer >= 0, got {chains!r}")
-        lik_scene = scene_for_inference(scene, tracks)   # checks scene against tracks
-        names = lik_scene.latent_names
-        if settings is None:
-            settings = Settings({n: tuple(scene.priors.bounds[n]) for n in names})
-        else:
-            unknown = set(settings.bounds) - set(names)
-            if unknown:
-                raise ValueError(f"bounds for unknown latents {sorted(unknown)}; expected {', '.join(names)}")
-            bounds = {n: settings.bounds.get(n, scene.priors.bounds[n]) for n in names}
-            settings = Settings({n: _check_bound(n, *bounds[n], names=names) for n in names},
-                                _check_sigma(settings.sigma_mps),
-                                *_check_widths(settings.narrow, settings.broad, settings.broad_every))
+        if isinstance(seed, bool) or int(seed) != seed or seed < 0:
+            raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+        scenario = registry.of(scene)
+        lik_scene = scenario.prepare(scene, tracks)   # checks scene against tracks
+        latents = scenario.latents(lik_scene)
+        settings = (settings or Settings.default(latents, scenario.noise)).checked(latents, scenario.noise)
         if session_dir is not None:
             session_dir = Path(session_dir)
             if (session_dir / sess.CHAINS_FILE).exists():
                 raise GalileoError(f"{session_dir} already holds a session; open it with Controller.load")
-        self._setup(scene, tracks, names, int(seed), workers, settings, session_dir, save_every_s)
+        self._setup(scene, tracks, latents, int(seed), workers, settings, session_dir, save_every_s, executor)
         self._likelihood_scene = lik_scene
         with self._lock:
             ids = list(range(int(chains)))
@@ -295,15 +160,19 @@ class Controller:
             self.save()
         self._start_pool()
 
-    def _setup(self, scene, tracks, names, seed, workers, settings, session_dir, save_every_s) -> None:
+    def _setup(self, scene, tracks, latents, seed, workers, settings, session_dir, save_every_s, executor) -> None:
         self.scene, self.tracks = scene, tracks
-        self._likelihood_scene: Scene | None = None
-        self.names: tuple[str, ...] = tuple(names)
+        self.scenario = registry.of(scene)
+        self._likelihood_scene = None
+        self.latents = tuple(latents)
+        self._specs = by_name(latents)
+        self.names: tuple[str, ...] = tuple(lat.name for lat in latents)
         self.seed = seed
         self.workers = max(1, int(workers or os.cpu_count() or 1))
         self.session_dir = session_dir
         self.save_every_s = float(save_every_s)
         self._scene_json, self._tracks_json = scene.to_json(), tracks.to_json()
+        self._problem = Problem.of(scene, tracks)
         self._settings = settings
         self._chains: dict[int, _Chain] = {}
         self._next_id = 0
@@ -323,26 +192,21 @@ class Controller:
         self._listeners: list[Listener] = []
         self._thread: threading.Thread | None = None
         self._stop_evt = threading.Event()
-        self._pool: ProcessPoolExecutor | None = None
+        self._executor = executor
+        self._own_executor = executor is None
         self._closed = False
         self._error: str | None = None
         self._dirty = True
         self._last_save = -math.inf
 
     # -- workers ------------------------------------------------------------------------------------------
-    def _start_pool(self) -> ProcessPoolExecutor:
-        if self._pool is None:
-            ctx = mp.get_context("fork")
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_worker_init,
-                                             initargs=(self._scene_json, self._tracks_json,
-                                                       self._settings.sigma_mps))
-            try:  # fork every worker now, from this thread, before any runner thread exists
-                for f in [self._pool.submit(_ping) for _ in range(self.workers)]:
-                    f.result()
-            except BrokenProcessPool as e:
-                self._pool = None
-                raise GalileoError(f"inference workers failed to start: {e}") from None
-        return self._pool
+    def _start_pool(self):
+        """The executor (a LocalPool is forked now, from this thread, before any runner thread)."""
+        if self._executor is None:
+            from galileo.runner import LocalPool
+
+            self._executor = LocalPool(self.workers)
+        return self._executor
 
     # -- rounds ----------------------------------------------------------------------------------------------
     def _round(self) -> bool:
@@ -357,18 +221,17 @@ class Controller:
                 s = self._settings
                 bounds = self._bounds_array()
                 proposal = s.proposal()
-                tasks = [(ch.id, ch.position.copy(), ch.logdensity, ch.sweep, copy.deepcopy(ch.rng_state),
-                          bounds, proposal, s.sigma_mps) for ch in run]
+                tasks = [ChainTask(self._problem, ch.id, ch.position.copy(), ch.logdensity, ch.sweep,
+                                   copy.deepcopy(ch.rng_state), 1, bounds, proposal, s.noise, True) for ch in run]
                 self._in_flight = True
             try:
-                pool = self._start_pool()
-                results = [f.result() for f in [pool.submit(_sweep_task, t) for t in tasks]]
+                results = list(self._start_pool().map(run_task, tasks))
             except BaseException as e:
                 with self._lock:
                     self._in_flight = False
                     self._apply_pending()
-                if isinstance(e, BrokenProcessPool):
-                    self._pool = None
+                if isinstance(e, GalileoError) and self._own_executor and "died" in str(e):
+                    self._executor = None   # a fresh pool next round
                 if isinstance(e, GalileoError):
                     raise
                 if isinstance(e, Exception):
@@ -384,7 +247,7 @@ class Controller:
                     ch.rng_state = r["rng"]
                     ch.samples.extend(ch.position[None])
                     ch.logliks.extend([ch.logdensity])
-                    for k in _PROPOSAL_FIELDS:
+                    for k in PROPOSAL_FIELDS:
                         ch.proposals[k].extend(r[k])
                     ch.note_best(len(ch.logliks) - 1)
                     np.add.at(self._acc_n, r["site"].astype(int), 1)
@@ -461,9 +324,9 @@ class Controller:
         self.stop()
         with self._round_lock:
             self._closed = True
-            if self._pool is not None:
-                self._pool.shutdown(wait=True, cancel_futures=True)
-                self._pool = None
+            if self._executor is not None and self._own_executor:
+                self._executor.shutdown()
+            self._executor = None
 
     def __enter__(self) -> "Controller":
         return self
@@ -527,7 +390,9 @@ class Controller:
 
     def set_bounds(self, name: str, lo: float, hi: float) -> None:
         """Uniform prior bounds of one latent; chains outside move to the nearest point inside."""
-        lo, hi = _check_bound(name, lo, hi, names=self.names)
+        if name not in self._specs:
+            raise ValueError(f"unknown latent {name!r}; expected one of {', '.join(self.names)}")
+        lo, hi = check_bounds(self._specs[name], lo, hi)
         j = self.names.index(name)
 
         def apply():
@@ -549,24 +414,28 @@ class Controller:
             self._event("bounds", {"name": name, "lo": lo, "hi": hi, "old": [old[0], old[1]], "moved": moved})
         self._steer(apply)
 
-    def set_sigma(self, sigma_mps: float) -> None:
-        """Likelihood noise (SD, m/s); chains' logdensities are recomputed before their next proposals."""
-        sigma = _check_sigma(sigma_mps)
+    def set_noise(self, value: float) -> None:
+        """The likelihood's noise (an SD, in the scenario's unit: m/s for the ramp); chains'
+        logdensities are recomputed before their next proposals. Recorded as a "sigma" event."""
+        spec = self.scenario.noise
+        sigma = check_noise(spec, value)
 
         def apply():
-            old = self._settings.sigma_mps
+            old = self._settings.noise
             if old == sigma:
                 return
-            self._settings.sigma_mps = sigma
+            self._settings.noise = sigma
             for ch in self._chains.values():
                 if not ch.removed:
                     ch.logdensity = None
-            self._event("sigma", {"sigma_mps": sigma, "old": old})
+            self._event("sigma", {spec.name: sigma, "old": old})
         self._steer(apply)
+
+    set_sigma = set_noise
 
     def set_widths(self, narrow: float, broad: float, broad_every: int) -> None:
         """Proposal half-widths: U(-narrow, narrow), U(-broad, broad) every broad_every-th sweep (0: never)."""
-        n, b, e = _check_widths(narrow, broad, broad_every)
+        n, b, e = check_widths(narrow, broad, broad_every)
 
         def apply():
             s = self._settings
@@ -668,7 +537,7 @@ class Controller:
             for k, v in values.items():
                 if k not in self.names:
                     raise ValueError(f"unknown latent {k!r}; expected one of {', '.join(self.names)}")
-                x = _number(v, k)
+                x = as_number(v, k)
                 lo, hi = self._settings.bounds[k]
                 if not lo <= x <= hi:
                     raise ValueError(f"{k}={x:g} is outside its prior bounds [{lo:g}, {hi:g}]")
@@ -701,10 +570,10 @@ class Controller:
             return self._settings.copy()
 
     @property
-    def likelihood_scene(self) -> Scene:
-        """The scene the likelihood simulates (shapes and offset from tracking)."""
+    def likelihood_scene(self):
+        """The scene the likelihood simulates (what tracking fixed put in)."""
         if self._likelihood_scene is None:
-            self._likelihood_scene = scene_for_inference(self.scene, self.tracks)
+            self._likelihood_scene = self.scenario.prepare(self.scene, self.tracks)
         return self._likelihood_scene
 
     @property
@@ -746,7 +615,7 @@ class Controller:
         with self._lock:
             ch = self._get(chain)
             if ch is None:
-                return {k: np.empty((0, len(self.names)) if w else 0, t) for k, (t, w) in _PROPOSAL_FIELDS.items()}
+                return {k: np.empty((0, len(self.names)) if w else 0, t) for k, (t, w) in PROPOSAL_FIELDS.items()}
             return {k: b.get() for k, b in ch.proposals.items()}
 
     def position(self, chain: int) -> dict[str, float]:
@@ -796,8 +665,8 @@ class Controller:
                              "values": self._values(ch.position)}
             acc = {n: (float(self._acc_k[j] / self._acc_n[j]) if self._acc_n[j] else None)
                    for j, n in enumerate(self.names)}
-            kept = [ch.samples.a[burn_in(ch.samples.n):ch.samples.n]
-                    for _, ch in sorted(self._chains.items()) if not ch.removed and ch.samples.n >= 4]
+            kept = kept_draws([ch.samples.a[:ch.samples.n] for _, ch in sorted(self._chains.items())
+                               if not ch.removed])
             best = self.map()
             out = {"running": self.running, "rounds": self._rounds,
                    "sweeps": int(sum(ch.sweep for ch in self._chains.values())),
@@ -808,7 +677,7 @@ class Controller:
                    "map": None if best is None else {"chain": best[0], "index": best[1], "values": best[2],
                                                      "loglik": best[3]},
                    "error": self._error}
-        out["r_hat"] = _r_hat(kept, self.names)
+        out["r_hat"] = rhat_ess(kept, self.names)[0]
         return out
 
     # -- helpers -----------------------------------------------------------------------------------------------
@@ -849,22 +718,24 @@ class Controller:
 
     @classmethod
     def load(cls, session_dir: str | Path, *, workers: int | None = None,
-             save_every_s: float = 1.0) -> "Controller":
+             save_every_s: float = 1.0, executor=None) -> "Controller":
         """Restore a saved session exactly; its chains go on from where they stopped."""
         folder = sess.check_folder(session_dir)
         path = folder / sess.SCENE_FILE
         scene_json = sess.read_json_file(folder, sess.SCENE_FILE)
         with sess.reading(path):
-            scene = scene_from_json(scene_json)
+            scene = registry.scene_from_json(scene_json)
+            scenario = registry.of(scene)
         path = folder / sess.TRACKS_FILE
         tracks_json = sess.read_json_file(folder, sess.TRACKS_FILE)
         with sess.reading(path):
             tracks = Tracks.from_json(tracks_json)
-            names = scene_for_inference(scene, tracks).latent_names
+            latents = scenario.latents(scenario.prepare(scene, tracks))
+            names = tuple(lat.name for lat in latents)
         path = folder / sess.SETTINGS_FILE
         raw = sess.read_json_file(folder, sess.SETTINGS_FILE)
         with sess.reading(path):
-            Settings.from_json(raw, names)
+            Settings.from_json(raw, latents, scenario.noise)
         path = folder / sess.EVENTS_FILE
         raw_events = sess.read_json_file(folder, sess.EVENTS_FILE)
         with sess.reading(path):
@@ -877,7 +748,7 @@ class Controller:
         with sess.reading(path):
             if list(doc["names"]) != list(names):
                 raise ValueError(f"latents {doc['names']} differ from the scene's {list(names)}")
-            settings = Settings.from_json(doc["settings"], names)
+            settings = Settings.from_json(doc["settings"], latents, scenario.noise)
             n_events = int(doc["n_events"])
             if not 0 <= n_events <= len(events):
                 raise ValueError(f"{n_events} events committed but events.json holds {len(events)}")
@@ -886,7 +757,7 @@ class Controller:
             next_id, steps = int(doc["next_id"]), int(doc["physics_steps"])
         record = sess.read_record(folder)
         self = cls.__new__(cls)
-        self._setup(scene, tracks, names, seed, workers, settings, folder, save_every_s)
+        self._setup(scene, tracks, latents, seed, workers, settings, folder, save_every_s, executor)
         self._rounds, self._next_id, self._steps = rounds, next_id, steps
         self._events = events[:n_events]
         dim = len(names)
@@ -912,7 +783,7 @@ class Controller:
                     raise ValueError(f"chain {c}: fewer than the {n_s} committed samples")
                 ch.samples = _Buf(float, dim, samples[:n_s])
                 ch.logliks = _Buf(float, None, logliks[:n_s])
-                for k, (t, wide) in _PROPOSAL_FIELDS.items():
+                for k, (t, wide) in PROPOSAL_FIELDS.items():
                     a = record[f"c{c}_{k}"]
                     if len(a) < n_p:
                         raise ValueError(f"chain {c}: fewer than the {n_p} committed proposals")
@@ -935,22 +806,3 @@ def _vector(x, dim: int) -> np.ndarray:
     if v.shape != (dim,) or not np.all(np.isfinite(v)):
         raise ValueError(f"expected {dim} finite numbers, got {x!r}")
     return v
-
-
-def _r_hat(kept: list[np.ndarray], names) -> dict[str, float | None]:
-    """Split R-hat per latent over the chains' second halves (each cut to the shortest)."""
-    out = {n: None for n in names}
-    if len(kept) < 2:
-        return out
-    length = min(len(k) for k in kept)
-    if length < 2:
-        return out
-    from arviz_stats.base import array_stats
-
-    x = np.stack([k[len(k) - length:] for k in kept])   # (chains, draws, D)
-    for j, n in enumerate(names):
-        xj = x[..., j]
-        if np.ptp(xj) > 0:
-            v = float(array_stats.rhat(xj, chain_axis=0, draw_axis=1))
-            out[n] = v if math.isfinite(v) else None
-    return out

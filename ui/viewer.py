@@ -2,10 +2,12 @@
 
 It only draws and forwards the user's edits to the controller (ui/controller.py); the
 one computation it does itself is re-simulating the selected sample (Bullet, in this
-process) so the 3-D scene shows what that sample predicts.
+process) with the scenario's likelihood (`Likelihood.motion`), so the 3-D scene shows the
+very motion that sample was scored on (same phases, same rest rule).
 
-* 3-D: ground, ramp, the objects with their tracked shapes posed from the selected
-  sample's simulation at the current frame; the observed tracks (orange) and the
+* 3-D: what the scenario draws (`Scenario.drawing`: for the ramp, the ground grid, the ramp
+  and the objects with their tracked shapes) posed from the selected sample's motion at
+  the current frame; the observed tracks (orange) and the
   simulated trajectory (blue) as polylines; the video camera as a frustum showing the
   current frame.
 * "Camera view" snaps each browser's camera to the video camera's pose and field of view
@@ -28,12 +30,10 @@ import trimesh
 import viser
 from viser import uplot
 
-from galileo.inference import burn_in
+from galileo.runner import burn_in
 from galileo.datatypes import Trajectory
-from galileo.scenarios.ramp.physics import Simulator
+from galileo import registry
 from galileo.camera import Camera
-from galileo.scenarios.ramp.scene import Scene
-from galileo.shapes import mesh as shape_mesh
 from galileo.datatypes import Tracks
 
 OBJECT_COLORS = [(220, 90, 50), (70, 130, 220)]
@@ -76,7 +76,7 @@ class Selection:
 
 
 class Viewer:
-    def __init__(self, controller, scene: Scene, tracks: Tracks, video_rgb: np.ndarray, *,
+    def __init__(self, controller, scene, tracks: Tracks, video_rgb: np.ndarray, *,
                  host: str = "127.0.0.1", port: int = 8080, target_sweeps: int = 75):
         self.ctrl = controller
         self.scene = scene
@@ -85,7 +85,8 @@ class Viewer:
         self.n_frames = min(len(video_rgb), tracks.n_frames)
         self.fps = tracks.fps
         self.target_sweeps = target_sweeps
-        self.sim = Simulator(scene)
+        self.scenario = registry.of(scene)
+        self.model = self.scenario.likelihood(scene, tracks, controller.settings.noise)   # draws its `motion`
         self.traj: Trajectory | None = None
         self.resimulations = 0
         self.last_resim_s = 0.0
@@ -111,20 +112,13 @@ class Viewer:
     def _build_scene(self) -> None:
         s, sc = self.server.scene, self.scene
         s.set_up_direction("+z")
-        s.add_grid("/ground", width=3.0, height=2.0, plane="xy", position=(0.0, 0.0, 0.0))
-        r = sc.ramp
-        ramp = trimesh.creation.box(extents=(r.length_m, r.width_m, r.thickness_m))
-        centre = -(r.length_m / 2) * r.downhill - (r.thickness_m / 2) * r.normal
-        # half transparent, so that in camera view the video's ramp shows through
-        s.add_mesh_simple("/ramp", ramp.vertices, ramp.faces, color=(196, 170, 130), opacity=0.45,
-                          position=centre, wxyz=_wxyz_from_xyzw(r.orientation_xyzw))
-        self.object_handles = []
-        for i, obj in enumerate(sc.objects):
-            m = shape_mesh(obj.shape).copy()
-            m.visual.face_colors = (*OBJECT_COLORS[i % 2], 255)
-            pos, orn = sc.initial_pose(i)
-            self.object_handles.append(s.add_mesh_trimesh(f"/objects/{obj.name}", m, position=pos,
-                                                          wxyz=_wxyz_from_xyzw(orn)))
+        drawing = self.scenario.drawing(sc)
+        if drawing.ground_z_m is not None:
+            s.add_grid("/ground", width=3.0, height=2.0, plane="xy", position=(0.0, 0.0, drawing.ground_z_m))
+        for m in drawing.static:
+            s.add_mesh_simple(f"/{m.name}", m.vertices, m.faces, color=m.color, opacity=m.opacity)
+        self.object_handles = [s.add_mesh_simple(f"/objects/{m.name}", m.vertices, m.faces, color=m.color,
+                                                 opacity=m.opacity) for m in drawing.objects]
         for o in self.tracks.objects:
             s.add_line_segments(f"/tracks/observed/{o.name}", _segments(o.position_m), (255, 140, 0),
                                 thickness=3, thickness_units="screen")
@@ -174,7 +168,8 @@ class Viewer:
             for n in ctrl.names:
                 lo, hi = st.bounds[n]
                 self.bound_inputs[n] = g.add_vector2(f"{n} bounds", (lo, hi), step=0.001)
-            self.sigma_input = g.add_number("sigma (m/s)", st.sigma_mps, min=1e-4, step=0.001)
+            noise = ctrl.scenario.noise
+            self.sigma_input = g.add_number(f"{noise.name} ({noise.unit})", st.noise, min=1e-4, step=0.001)
             self.narrow_input = g.add_number("narrow width", st.narrow, min=1e-4, step=0.001)
             self.broad_input = g.add_number("broad width", st.broad, min=1e-4, step=0.01)
             self.every_input = g.add_number("broad every", st.broad_every, min=0, step=1)
@@ -210,8 +205,8 @@ class Viewer:
                     lo, hi = (float(v) for v in h.value)
                     if (lo, hi) != tuple(ctrl.settings.bounds[n]):
                         ctrl.set_bounds(n, lo, hi)
-                if float(self.sigma_input.value) != ctrl.settings.sigma_mps:
-                    ctrl.set_sigma(float(self.sigma_input.value))
+                if float(self.sigma_input.value) != ctrl.settings.noise:
+                    ctrl.set_noise(float(self.sigma_input.value))
                 widths = (float(self.narrow_input.value), float(self.broad_input.value), int(self.every_input.value))
                 st = ctrl.settings
                 if widths != (st.narrow, st.broad, st.broad_every):
@@ -252,17 +247,22 @@ class Viewer:
         t0 = time.perf_counter()
         with self._lock:
             samples = self.ctrl.samples(chain)
-            if len(samples) == 0:
+            if len(samples) == 0:   # nothing drawn yet: where the chain starts (or the priors' middle)
                 values = None
                 index = 0
+                try:
+                    position = np.array(list(self.ctrl.position(chain).values()))
+                except ValueError:
+                    position = self.ctrl.settings.bounds_array(self.ctrl.names).mean(axis=1)
             else:
                 index = int(np.clip(index, 0, len(samples) - 1))
                 if not (force or self.selection_empty) and self.selection == Selection(chain, index):
                     return 0.0
-                values = {n: float(v) for n, v in zip(self.ctrl.names, samples[index])}
+                position = samples[index]
+                values = {n: float(v) for n, v in zip(self.ctrl.names, position)}
             self.selection_empty = len(samples) == 0
             self.selection = Selection(chain, index)
-            self.traj = self.sim.run(self.n_frames, values, fps=self.fps, with_orientation=True)
+            self.traj = self.model.motion(position)
             self.resimulations += 1
             self._pose_objects(self.frame)
             self._update_sim_lines()

@@ -1,1 +1,104 @@
-"""The ramp scenario of Galileo (NIPS 2015): an object slides down a ramp, maybe into a target."""
+"""The ramp scenario of Galileo (NIPS 2015): an object slides down a ramp, maybe into a target.
+
+Everything the ramp knows lives in this folder: the scene and its priors (`scene.py`), the
+Bullet world (`physics.py`), detection and tracking of its objects (`tracking.py`), the
+two-phase velocity likelihood with its exact speed-ups (`likelihood.py`), the paper's
+questions (`predict.py`), its dataset and renderer (`dataset.py`, `render.py`,
+`materials.py`) and experiments (`experiments.py`). `RampScenario` is its face to the rest
+of Galileo (`galileo.model.Scenario`).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ...latents import Noise
+from ...model import Drawing, Mesh, Scenario
+
+RAMP_COLOR = (196, 170, 130)
+OBJECT_COLORS = [(220, 90, 50), (70, 130, 220)]
+
+
+class RampScenario(Scenario):
+    name = "ramp"
+    description = ("an object slides down a ramp and maybe hits a target on the ground "
+                   "(Galileo, NIPS 2015): masses and frictions from tracked velocities")
+    noise = Noise("sigma_mps", "m/s", 0.05, "SD of each tracked velocity component (x, z), the paper's Sigma")
+
+    def scene_from_json(self, data):
+        from .scene import scene_from_json
+
+        return scene_from_json(data)
+
+    def default_scene(self):
+        from .scene import default_scene
+
+        return default_scene()
+
+    def latents(self, scene):
+        return scene.latent_specs()
+
+    def track(self, video_path, scene, *, progress: bool = True, debug_video=None):
+        from ...tracking import track  # TODO(me): .tracking once split
+
+        return track(video_path, scene, progress=progress, debug_video=debug_video)
+
+    def prepare(self, scene, tracks):
+        from .likelihood import scene_for_inference
+
+        return scene_for_inference(scene, tracks)
+
+    def simulate(self, scene, n_frames, values=None, fps=None):
+        from .physics import Simulator
+
+        return Simulator(scene).run(n_frames, values, fps=fps, with_orientation=True)
+
+    def likelihood(self, prepared_scene, tracks, noise, speedups=True):
+        from .likelihood import VelocityLikelihood
+
+        return VelocityLikelihood(prepared_scene, tracks, noise, speedups)
+
+    def drawing(self, scene) -> Drawing:
+        import trimesh
+
+        from ...shapes import mesh as shape_mesh
+
+        r = scene.ramp
+        box = trimesh.creation.box(extents=(r.length_m, r.width_m, r.thickness_m))
+        centre = -(r.length_m / 2) * r.downhill - (r.thickness_m / 2) * r.normal
+        x, y, z, w = r.orientation_xyzw
+        box.apply_transform(trimesh.transformations.quaternion_matrix([w, x, y, z]))
+        box.apply_translation(centre)
+        # half transparent, so that in camera view the video's ramp shows through
+        ramp = Mesh("ramp", np.asarray(box.vertices), np.asarray(box.faces), RAMP_COLOR, 0.45)
+        objects = []
+        for i, obj in enumerate(scene.objects):
+            m = shape_mesh(obj.shape)
+            objects.append(Mesh(obj.name, np.asarray(m.vertices), np.asarray(m.faces), OBJECT_COLORS[i % 2]))
+        return Drawing(static=(ramp,), objects=tuple(objects), ground_z_m=0.0)
+
+    def derived(self, values):
+        if "m2_kg" in values:
+            return {"mass_ratio": values["m1_kg"] / values["m2_kg"]}
+        return {"mass_ratio": None}
+
+    def summary(self, values):
+        ratio = self.derived(values)["mass_ratio"]
+        return ", ".join(f"{k} = {v:.3f}" for k, v in values.items()) + (
+            f", m1/m2 = {ratio:.2f}" if ratio is not None else "")
+
+    def predict(self, result_path: str | Path, questions: dict) -> dict:
+        from ...errors import GalileoError
+        from .predict import Prediction
+
+        pred = Prediction(result_path)
+        out: dict = {}
+        if questions.get("angle_deg") is not None:
+            out["will_it_move"] = pred.will_it_move(questions["angle_deg"])
+        if questions.get("target") or questions.get("scene"):
+            out["target"] = pred.target_outcome(self.load_scene(questions["scene"]) if questions.get("scene")
+                                                else None)
+        if not out:
+            raise GalileoError("nothing to predict: give --angle-deg and/or --target (or --scene)")
+        return out

@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ...errors import GalileoError
-from ...inference import InferenceConfig, infer
+from ...runner import RunConfig, infer
 from ...jsonio import write_json
 from ...datatypes import Trajectory
 from .predict import slides
@@ -34,7 +34,7 @@ def truth_moves(traj: Trajectory) -> bool:
     return bool(np.linalg.norm(traj.position_m[0, -1] - traj.position_m[0, 0]) > MOVED_M)
 
 
-def run_video(folder: Path, config: InferenceConfig) -> dict:
+def run_video(folder: Path, config: RunConfig, executor=None) -> dict:
     scene = Scene.load(folder / "scene.json")
     truth = json.loads((folder / "truth.json").read_text())
     lat = truth["latents"]
@@ -46,7 +46,7 @@ def run_video(folder: Path, config: InferenceConfig) -> dict:
     if not rec["moves"]:
         return rec  # nothing to track (the tracker refuses a still video)
     tracks = track(folder / "video.mp4", scene, progress=False)
-    res = infer(scene, tracks, config, progress=False)
+    res = infer(scene, tracks, config, executor=executor, progress=False)
     rec.update({"map": res.map, "mass_ratio": res.mass_ratio(), "seconds": res.timing_s["wall"],
                 "shape_found": tracks.objects[0].shape.type, "offset_found": tracks.objects[0].offset_units})
     if res.scene.target is not None:
@@ -93,17 +93,19 @@ def summarise(records: list[dict], wim: list[dict]) -> dict:
             "seconds_per_video": float(np.mean([r["seconds"] for r in fitted])) if fitted else None}
 
 
-def run_experiments(folder: str | Path, config: InferenceConfig | None = None, progress: bool = True,
-                    out: str | Path | None = None) -> dict:
+def run_experiments(folder: str | Path, config: RunConfig | None = None, progress: bool = True,
+                    out: str | Path | None = None, executor=None) -> dict:
+    """Every video of a dataset folder through tracking and the chain runner (on `executor`,
+    default: a local pool per video), then the three experiments; the report as a dict."""
     folder = Path(folder)
     index = folder / "index.json"
     if not index.exists():
         raise GalileoError(f"{folder} is not a dataset folder (no index.json; make one with `galileo dataset`)")
     names = [v["name"] for v in json.loads(index.read_text())["videos"]]
-    cfg = config or InferenceConfig()
+    cfg = config or RunConfig()
     records = []
     for name in tqdm(names, desc="videos", unit="video", disable=not progress):
-        records.append(run_video(folder / name, cfg))
+        records.append(run_video(folder / name, cfg, executor))
         if out is not None:  # keep what is done so far
             write_json(out, {"partial": True, "records": records})
     wim = will_it_move(records, folder)

@@ -57,7 +57,7 @@ from ...sim.bullet import pb
 from ...errors import GalileoError
 from .physics import Simulator
 from .scene import Scene
-from ...datatypes import Tracks
+from ...datatypes import Tracks, Trajectory
 
 REST_MPS = 1e-3        # linear speed below which an object counts as at rest (m/s)
 REST_RADPS = 0.02      # and angular speed (rad/s)
@@ -165,8 +165,10 @@ class VelocityLikelihood:
         total, early, _ = self._evaluate(values, limit)
         return self.log_norm + total, early
 
-    def _evaluate(self, values: dict, limit: float, record: bool = False):
-        """Sum of the per-frame terms; (sum or partial sum, stopped early, positions/velocities).
+    def _evaluate(self, values: dict, limit: float, record: bool = False, reuse: bool = True):
+        """Sum of the per-frame terms; (sum or partial sum, stopped early, record): with
+        `record`, per-frame (positions, velocities, orientations), NaN in frames a reused
+        prefix skipped (`reuse=False` simulates from frame 0 instead).
 
         Phase A: the ramp object slides with unit mass while the target's motion alone (it
         rests on the ground) is taken from `_target_alone`; until the objects come within
@@ -177,10 +179,11 @@ class VelocityLikelihood:
         """
         fast = self.speedups
         key = (values["k1"],)  # all that phase A depends on
-        prefix = self._prefixes.get(key) if fast else None
+        prefix = self._prefixes.get(key) if fast and reuse else None
         n = self.n_frames
         n_obj = len(self.scene.objects)
-        rec = (np.full((n_obj, n, 3), np.nan), np.full((n_obj, n, 3), np.nan)) if record else None
+        rec = (np.full((n_obj, n, 3), np.nan), np.full((n_obj, n, 3), np.nan),
+               np.full((n_obj, n, 4), np.nan)) if record else None
         sim = self.sim
         if prefix is not None:
             self._prefixes.move_to_end(key)
@@ -311,13 +314,15 @@ class VelocityLikelihood:
                 speeds[i] = speed
             if record := rec is not None:
                 rec[1][:, f] = vel
-                rec[0][:, f] = [pb.getBasePositionAndOrientation(b, physicsClientId=cid)[0] for b in bodies]
+                for i, b in enumerate(bodies):
+                    rec[0][i, f], rec[2][i, f] = pb.getBasePositionAndOrientation(b, physicsClientId=cid)
                 if phase_a:
-                    rec[0][1, f] = target_alone[f * spf][0][0]
+                    rec[0][1, f], rec[2][1, f] = target_alone[f * spf][0]
             rest_run = rest_run + 1 if (f and slow) else 0
             if rest_run >= 2:  # at rest: this frame and all later ones hold still
                 if record:
                     rec[0][:, f:] = rec[0][:, f:f + 1]
+                    rec[2][:, f:] = rec[2][:, f:f + 1]
                     rec[1][:, f:] = 0.0
                 if not fast:  # the plain path steps through the rest all the same
                     for _ in range(spf * (n - 1 - f)):
@@ -339,10 +344,9 @@ class VelocityLikelihood:
         while len(self._prefixes) > self._cache_size:
             self._prefixes.popitem(last=False)
 
-    # -- trajectories (for predictions, the viewer) ------------------------------------------
-    def simulated_motion(self, position) -> tuple[np.ndarray, np.ndarray]:
-        """Positions and velocities (O, F, 3) as the likelihood sees them (rest rule and
-        prefix reuse included), for tests and the viewer."""
-        _, _, rec = self._evaluate(self.values_of(position), -math.inf, record=True)
-        return rec
-
+    # -- the motion scored (for the viewer, rerun and tests) ------------------------------------
+    def motion(self, position) -> Trajectory:
+        """The simulated motion exactly as the likelihood scores it (both phases, the rest
+        rule, prefix reuse): per frame, positions, velocities and orientations."""
+        _, _, (pos, vel, orn) = self._evaluate(self.values_of(position), -math.inf, record=True, reuse=False)
+        return Trajectory(self.fps, [o.name for o in self.scene.objects], pos, vel, orn)

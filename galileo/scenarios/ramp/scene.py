@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, ClassVar, Iterable
 
 import numpy as np
 
@@ -22,6 +22,7 @@ from ...camera import Camera, camera_from_json, look_at_camera
 from ...errors import SceneError
 from ...fields import field_value, matrix, number, pair
 from ...jsonio import read_json, write_json
+from ...latents import Latent, check_bounds
 from ...shapes import SHAPE_TYPES, Shape
 
 SCENE_VERSION = 1
@@ -29,13 +30,23 @@ ROLES = ("ramp", "target")
 TARGET_KINDS = ("cardboard", "foam")
 # latent name -> (object index, attribute)
 LATENTS = {"m1_kg": (0, "mass_kg"), "k1": (0, "friction"), "m2_kg": (1, "mass_kg"), "k2": (1, "friction")}
+_MASS = dict(unit="kg", limits=(0.0, math.inf), limits_open_low=True)
+_FRICTION = dict(unit="1", limits=(0.0, math.inf))
+# the latents: the paper's priors (mass ~ U(0.001, 1) kg, friction ~ U(0, 1)) and proposals
+LATENT_SPECS = {
+    "m1_kg": Latent("m1_kg", bounds=(0.001, 1.0), doc="ramp object's mass", **_MASS),
+    "k1": Latent("k1", bounds=(0.0, 1.0), doc="ramp object's friction coefficient (against ramp and ground)",
+                 **_FRICTION),
+    "m2_kg": Latent("m2_kg", bounds=(0.001, 1.0), doc="target's mass", **_MASS),
+    "k2": Latent("k2", bounds=(0.0, 1.0), doc="target's friction coefficient (against the ground)", **_FRICTION),
+}
 # names `--set` accepts besides the latents
 SCENE_KNOBS = ("offset_units", "angle_deg", "e1", "e2")
 
 
 # -- priors --------------------------------------------------------------------
 
-DEFAULT_BOUNDS = {"m1_kg": (0.001, 1.0), "k1": (0.0, 1.0), "m2_kg": (0.001, 1.0), "k2": (0.0, 1.0)}
+DEFAULT_BOUNDS = {n: lat.bounds for n, lat in LATENT_SPECS.items()}
 
 
 @dataclass(frozen=True)
@@ -83,7 +94,7 @@ class Priors:
         for k, v in bounds.items():
             if k not in new:
                 raise KeyError(k)
-            new[k] = (float(v[0]), float(v[1]))
+            new[k] = check_bounds(LATENT_SPECS[k], *v)
         return replace(self, bounds=new)
 
     def to_json(self) -> dict:
@@ -152,6 +163,7 @@ class SceneObject:
 
 @dataclass(frozen=True)
 class Scene:
+    scenario: ClassVar[str] = "ramp"
     ramp: Ramp
     objects: tuple[SceneObject, ...]
     camera: Camera | None = None
@@ -173,6 +185,10 @@ class Scene:
     @property
     def latent_names(self) -> tuple[str, ...]:
         return tuple(n for n, (i, _) in LATENTS.items() if i < len(self.objects))
+
+    def latent_specs(self) -> tuple[Latent, ...]:
+        """The latents of this scene (the target's only with a target), with its prior bounds."""
+        return tuple(replace(LATENT_SPECS[n], bounds=self.priors.bounds[n]) for n in self.latent_names)
 
     def latents(self) -> dict[str, float]:
         return {n: float(getattr(self.objects[i], a)) for n, (i, a) in LATENTS.items() if i < len(self.objects)}
@@ -237,6 +253,7 @@ class Scene:
 
     def to_json(self) -> dict:
         d: dict[str, Any] = {
+            "scenario": self.scenario,
             "version": SCENE_VERSION,
             "ramp": {"angle_deg": self.ramp.angle_deg, "length_m": self.ramp.length_m,
                      "width_m": self.ramp.width_m, "thickness_m": self.ramp.thickness_m},
@@ -305,6 +322,9 @@ def _object(d: dict, i: int) -> SceneObject:
 def scene_from_json(data: Any) -> Scene:
     if not isinstance(data, dict):
         raise SceneError("expected a JSON object at the top level")
+    scenario = field_value(data, "scenario", "", "ramp")
+    if scenario != "ramp":
+        raise SceneError(f"scenario: this is the ramp scenario's parser, got {scenario!r}")
     version = field_value(data, "version", "", SCENE_VERSION)
     if version != SCENE_VERSION:
         raise SceneError(f"version: this Galileo reads scene version {SCENE_VERSION}, got {version!r}")
@@ -319,12 +339,13 @@ def scene_from_json(data: Any) -> Scene:
     objects = tuple(_object(o, i) for i, o in enumerate(objs))
     pd = field_value(data, "priors", "", {})
     base = Priors()
-    bounds = {k: pair(pd, k, "priors", list(v)) for k, v in base.bounds.items()}
-    for k, (lo, hi) in bounds.items():
-        if k.startswith("m") and lo <= 0:
-            raise SceneError(f"priors.{k}: mass bounds must be positive")
-        if k.startswith("k") and lo < 0:
-            raise SceneError(f"priors.{k}: friction bounds must be >= 0")
+    bounds = {}
+    for k, v in base.bounds.items():
+        lo, hi = pair(pd, k, "priors", list(v))
+        try:
+            bounds[k] = check_bounds(LATENT_SPECS[k], lo, hi)
+        except ValueError as e:
+            raise SceneError(f"priors.{e}") from None
     off = pair(pd, "offset_units", "priors", list(base.offset_units))
     types = field_value(pd, "shape_types", "priors", list(base.shape_types))
     if not isinstance(types, list) or not types or any(t not in SHAPE_TYPES for t in types):

@@ -1,0 +1,143 @@
+"""The scenario interface: everything the rest of Galileo knows about a physical scenario.
+
+A scenario (the ramp of Galileo, the splash of Physics 101, ...) lives whole in its own
+folder under `galileo/scenarios/` and is registered by name in `galileo.registry`. The
+chain runner, the CLI, the app's controller, viewer and rerun logger only call the
+methods below; none of them names a scenario's latents.
+
+Data path, per video:
+
+    scene file --load_scene--> scene --track(video)--> Tracks
+    (scene, Tracks) --prepare--> the scene inferred on (what tracking fixed)
+    prepared scene --latents--> Latent specs (names, units, priors, widths)
+    (prepared scene, Tracks, noise) --likelihood--> Likelihood (called by the MH kernel)
+    Likelihood.motion(position) --> Trajectory: the motion it scored, drawn by the UI
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol, Sequence
+
+import numpy as np
+
+from .datatypes import Trajectory, Tracks
+from .latents import Latent, Noise
+
+
+class Likelihood(Protocol):
+    """A log-likelihood over the latent vector (in `names` order), for the MH kernel.
+
+    `__call__(position, threshold=None)` returns (value, stopped_early): with a threshold
+    (and exact speed-ups on) it may stop as soon as it knows the value is below it and
+    return an upper bound below the threshold. `steps` counts the physics steps taken.
+    `motion(position)` is the simulated motion exactly as it was scored (same phases,
+    same rest rule), for the viewer, rerun and tests."""
+    names: tuple[str, ...]
+    steps: int
+
+    def __call__(self, position, threshold: float | None = None) -> tuple[float, bool]: ...
+
+    def motion(self, position) -> Trajectory: ...
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A piece of static scene geometry for the viewer: a triangle mesh in the world frame."""
+    name: str
+    vertices: np.ndarray    # (V, 3) metres, world frame
+    faces: np.ndarray       # (T, 3)
+    color: tuple[int, int, int] = (180, 180, 180)
+    opacity: float = 1.0
+
+
+@dataclass(frozen=True)
+class Drawing:
+    """What the viewer draws of a scene: static meshes, and one mesh per object in its own
+    frame (posed per frame by a Trajectory's positions and orientations)."""
+    static: Sequence[Mesh] = ()
+    objects: Sequence[Mesh] = ()    # in object frames, in the Trajectory's object order
+    ground_z_m: float | None = 0.0  # a grid at this height, if any
+
+
+class Scenario(ABC):
+    """One physical scenario. Subclasses set `name`, `description` and `noise`."""
+    name: str = ""
+    description: str = ""
+    noise: Noise
+
+    # -- scene -----------------------------------------------------------------------------
+    @abstractmethod
+    def scene_from_json(self, data: Any) -> Any:
+        """Parse and validate a scene (SceneError naming the field)."""
+
+    def load_scene(self, path: str | Path) -> Any:
+        from .errors import SceneError
+        from .jsonio import read_json
+
+        try:
+            return self.scene_from_json(read_json(path, "scene file"))
+        except SceneError as e:
+            raise SceneError(f"{path}: {e}") from None
+
+    @abstractmethod
+    def latents(self, scene) -> tuple[Latent, ...]:
+        """The latents inferred in this scene, with the scene's prior bounds."""
+
+    def with_values(self, scene, values: dict[str, float]):
+        """A copy of the scene with latents (and scenario knobs) set; SceneError on an unknown name."""
+        return scene.with_values(values)
+
+    # -- observations ----------------------------------------------------------------------
+    @abstractmethod
+    def track(self, video_path, scene, *, progress: bool = True, debug_video=None) -> Tracks:
+        """Pixels -> observations."""
+
+    @abstractmethod
+    def prepare(self, scene, tracks: Tracks):
+        """The scene as inferred on: what tracking fixed (shapes, offsets) put in; checks
+        that the tracks fit the scene (GalileoError otherwise)."""
+
+    # -- physics and likelihood -----------------------------------------------------------------
+    @abstractmethod
+    def simulate(self, scene, n_frames: int, values: dict[str, float] | None = None,
+                 fps: float | None = None) -> Trajectory:
+        """One plain simulation of the scene (with `values` overriding its latents)."""
+
+    @abstractmethod
+    def likelihood(self, prepared_scene, tracks: Tracks, noise: float, speedups: bool = True) -> Likelihood:
+        """The observation model over `latents(prepared_scene)`, in that order."""
+
+    # -- what the UI draws, and derived answers ---------------------------------------------------
+    @abstractmethod
+    def drawing(self, scene) -> Drawing:
+        """Static geometry and object meshes for the viewer and rerun."""
+
+    def derived(self, values: dict[str, float]) -> dict[str, float | None]:
+        """Quantities derived from a latent vector that a result reports (e.g. a mass ratio)."""
+        return {}
+
+    def summary(self, values: dict[str, float]) -> str:
+        """One line for a MAP estimate (what `galileo infer` prints after "MAP: ")."""
+        parts = [f"{k} = {v:.3f}" for k, v in values.items()]
+        parts += [f"{k} = {v:.3g}" for k, v in self.derived(values).items() if v is not None]
+        return ", ".join(parts)
+
+    def predict(self, result_path: str | Path, questions: dict) -> dict:
+        """Answers to the scenario's questions from a saved result (see `galileo predict`)."""
+        from .errors import GalileoError
+
+        raise GalileoError(f"the {self.name} scenario answers no questions")
+
+    def describe(self, scene=None) -> dict:
+        """What `galileo scenarios` prints: name, description, latents with units and priors."""
+        lats = self.latents(scene if scene is not None else self.default_scene())
+        return {"name": self.name, "description": self.description,
+                "noise": {"name": self.noise.name, "unit": self.noise.unit, "default": self.noise.default},
+                "latents": [lat.to_json() for lat in lats]}
+
+    @abstractmethod
+    def default_scene(self):
+        """A standard scene of this scenario (for `galileo scenarios` and the demo)."""
+

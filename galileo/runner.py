@@ -1,0 +1,357 @@
+"""The one chain runner: single-site MH chains over any scenario's likelihood, on any executor.
+
+`galileo infer`, `galileo experiment` and the app's controller all run chains through
+`run_task`: a pure function of a `ChainTask` (the problem as plain JSON, the chain's state
+and random-stream state, how many sweeps, the settings) that returns the sweeps' record.
+So a chain's samples depend only on (seed, chain index, settings), never on which process
+ran which sweeps: the batch runner sends each chain once for all its sweeps, the controller
+sends one sweep at a time and steers in between, and both give the same chains bit for bit.
+
+Chain c draws its random numbers from SeedSequence(seed, spawn_key=(c,)) (`mcmc.chain_rng`)
+and starts at `initial_positions(bounds, c + 1, seed)[c]` (drawn from the prior).
+
+Executors: anything with `map(fn, iterable)` (results in order). `LocalPool` (forked worker
+processes, each with its own pybullet client; a likelihood is built once per worker and
+problem) is the default; `workers=1` runs in this process. A Dask client fits the same slot.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import multiprocessing as mp
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from typing import Iterable, NamedTuple, Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+from . import registry
+from .datatypes import Tracks
+from .errors import GalileoError
+from .latents import Latent, Noise, by_name, check_bounds, check_noise, check_widths, default_widths
+from .mcmc import MHState, Proposal, chain_rng, sweep
+
+BURN_IN_FRACTION = 0.5  # posterior summaries and R-hat/ESS use the second half of each chain
+
+
+def burn_in(n_sweeps: int) -> int:
+    """Sweeps dropped from the start of a chain of `n_sweeps` before summarising it."""
+    return int(n_sweeps * BURN_IN_FRACTION)
+
+
+def initial_positions(bounds: np.ndarray, n_chains: int, seed: int) -> np.ndarray:
+    """Chain starts drawn uniformly from the prior (reproducible from the seed)."""
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2**31,)))
+    lo, hi = bounds[:, 0], bounds[:, 1]
+    return lo + (hi - lo) * rng.uniform(size=(n_chains, len(bounds)))
+
+
+# -- settings: what a user may change, checked in one place ---------------------------------------
+
+@dataclass
+class Settings:
+    """Prior bounds per latent, the likelihood's noise (None: the scenario's default) and
+    the proposal widths (a number, or one per latent)."""
+    bounds: dict[str, tuple[float, float]]
+    noise: float | None = None
+    narrow: float | tuple = 0.05
+    broad: float | tuple = 0.5
+    broad_every: int = 20
+    noise_spec: Noise = field(default=Noise("sigma_mps", "m/s", 0.05), compare=False)
+
+    @classmethod
+    def default(cls, latents: Sequence[Latent], noise: Noise) -> "Settings":
+        narrow, broad = default_widths(latents)
+        return cls({lat.name: tuple(lat.bounds) for lat in latents}, noise.default, narrow, broad, 20, noise)
+
+    def checked(self, latents: Sequence[Latent], noise: Noise | None = None) -> "Settings":
+        """A validated copy (ValueError with a one-line reason): bounds for exactly these
+        latents (any missing taken from the latents' own), each by `latents.check_bounds`;
+        the noise (named by `noise`, default this one's spec) and widths likewise."""
+        spec = noise or self.noise_spec
+        specs = by_name(latents)
+        unknown = set(self.bounds) - set(specs)
+        if unknown:
+            raise ValueError(f"bounds for unknown latents {sorted(unknown)}; expected {', '.join(specs)}")
+        bounds = {n: check_bounds(specs[n], *self.bounds.get(n, specs[n].bounds)) for n in specs}
+        narrow, broad, every = check_widths(self.narrow, self.broad, self.broad_every)
+        for w, what in ((narrow, "narrow"), (broad, "broad")):
+            if isinstance(w, tuple) and len(w) != len(specs):
+                raise ValueError(f"{what}: {len(w)} widths for {len(specs)} latents")
+        value = spec.default if self.noise is None else check_noise(spec, self.noise)
+        return Settings(bounds, value, narrow, broad, every, spec)
+
+    def copy(self) -> "Settings":
+        return Settings({k: (float(v[0]), float(v[1])) for k, v in self.bounds.items()}, self.noise,
+                        self.narrow, self.broad, int(self.broad_every), self.noise_spec)
+
+    def bounds_array(self, names: Sequence[str]) -> np.ndarray:
+        return np.array([self.bounds[n] for n in names], float)
+
+    def proposal(self) -> Proposal:
+        return Proposal(self.narrow, self.broad, int(self.broad_every))
+
+    def to_json(self) -> dict:
+        def w(x):
+            return list(x) if isinstance(x, tuple) else float(x)
+        return {"bounds": {k: [float(v[0]), float(v[1])] for k, v in self.bounds.items()},
+                self.noise_spec.name: float(self.noise), "sigma_is": f"standard deviation ({self.noise_spec.unit})",
+                "narrow": w(self.narrow), "broad": w(self.broad), "broad_every": int(self.broad_every)}
+
+    @classmethod
+    def from_json(cls, d: dict, latents: Sequence[Latent], noise: Noise) -> "Settings":
+        """Parse and check (ValueError on a bad or missing value; every latent needs bounds)."""
+        if not isinstance(d, dict) or not isinstance(d.get("bounds"), dict):
+            raise ValueError("expected an object with bounds")
+        missing = {lat.name for lat in latents} - set(d["bounds"])
+        if missing:
+            raise ValueError(f"no bounds for {sorted(missing)}")
+        try:
+            bounds = {k: tuple(v) for k, v in d["bounds"].items()}
+            narrow, broad = (tuple(x) if isinstance(x, list) else x for x in (d["narrow"], d["broad"]))
+            s = cls(bounds, d[noise.name], narrow, broad, d["broad_every"], noise)
+        except (KeyError, TypeError) as e:
+            raise ValueError(f"missing or malformed {e}") from None
+        if s.noise is None:
+            raise ValueError(f"{noise.name}: expected a number, got None")
+        return s.checked(latents, noise)
+
+
+@dataclass
+class RunConfig:
+    """How to run a batch of chains (the paper's protocol by default: 16 x 75)."""
+    chains: int = 16
+    sweeps: int = 75
+    seed: int = 0
+    workers: int | None = None          # None: all cores
+    speedups: bool = True               # the scenario's exact speed-ups (same decisions either way)
+    noise: float | None = None          # None: the scenario's default
+    narrow: float | None = None         # proposal half-widths; None: the latents' own
+    broad: float | None = None
+    broad_every: int | None = None      # None: every 20th sweep is broad
+    bounds: dict | None = None          # prior bounds overriding the scene's, per latent
+
+    def settings(self, latents: Sequence[Latent], noise: Noise) -> Settings:
+        s = Settings.default(latents, noise)
+        if self.noise is not None:
+            s.noise = self.noise
+        for name in ("narrow", "broad", "broad_every"):
+            if getattr(self, name) is not None:
+                setattr(s, name, getattr(self, name))
+        if self.bounds:
+            s.bounds.update(self.bounds)
+        return s.checked(latents, noise)
+
+    def check(self) -> None:
+        for what, v in (("chains", self.chains), ("sweeps", self.sweeps)):
+            if isinstance(v, bool) or int(v) != v or v < 1:
+                raise GalileoError(f"{what} must be an integer >= 1, got {v!r}")
+        if self.workers is not None and (int(self.workers) != self.workers or self.workers < 1):
+            raise GalileoError(f"workers must be an integer >= 1, got {self.workers!r}")
+        if int(self.seed) != self.seed or self.seed < 0:
+            raise GalileoError(f"seed must be an integer >= 0, got {self.seed!r}")
+
+
+# -- the problem and the task ----------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Problem:
+    """What a worker needs to build a likelihood, as plain JSON (crosses process boundaries;
+    no pybullet client ever does), and a key naming it."""
+    scenario: str
+    scene_json: dict
+    tracks_json: dict
+    key: str
+
+    @classmethod
+    def of(cls, scene, tracks: Tracks) -> "Problem":
+        scene_json, tracks_json = scene.to_json(), tracks.to_json()
+        text = json.dumps([scene.scenario, scene_json, tracks_json], sort_keys=True)
+        return cls(scene.scenario, scene_json, tracks_json, hashlib.sha1(text.encode()).hexdigest())
+
+
+class ChainTask(NamedTuple):
+    problem: Problem
+    chain: int
+    position: np.ndarray
+    logdensity: float | None    # None: evaluate at the position first (a new or moved chain)
+    sweep: int                  # sweeps done so far
+    rng_state: dict             # the chain's bit-generator state
+    n_sweeps: int
+    bounds: np.ndarray          # (D, 2)
+    proposal: Proposal
+    noise: float
+    speedups: bool = True
+
+
+# per-proposal record fields: name -> (dtype, one row of D values per proposal)
+PROPOSAL_FIELDS = {"site": (np.int8, False), "proposal": (float, True), "proposal_loglik": (float, False),
+                   "accepted": (bool, False), "early_stop": (bool, False), "width": (float, False)}
+
+_likelihoods: dict = {}   # this process's likelihoods: (problem key, noise, speedups) -> likelihood
+
+
+def likelihood_for(problem: Problem, noise: float, speedups: bool):
+    """This process's likelihood for the problem (built once; a new noise builds anew, since
+    saved prefixes hold terms scaled by the old one)."""
+    key = (problem.key, noise, speedups)
+    lik = _likelihoods.get(key)
+    if lik is None:
+        scenario = registry.get(problem.scenario)
+        scene = scenario.scene_from_json(problem.scene_json)
+        tracks = Tracks.from_json(problem.tracks_json)
+        lik = scenario.likelihood(scenario.prepare(scene, tracks), tracks, noise, speedups)
+        _likelihoods.clear()   # one at a time: a worker serves one problem (its worlds are cached too)
+        _likelihoods[key] = lik
+    return lik
+
+
+def run_task(task: ChainTask) -> dict:
+    """Run `task.n_sweeps` sweeps of one chain; the record of every sweep and proposal."""
+    t0 = time.perf_counter()
+    lik = likelihood_for(task.problem, task.noise, task.speedups)
+    steps0 = lik.steps
+    pos = np.asarray(task.position, float).copy()
+    logdensity = task.logdensity
+    evaluated = logdensity is None
+    if evaluated:
+        logdensity = float(lik(pos)[0])
+    bit_gen = getattr(np.random, task.rng_state["bit_generator"])()
+    bit_gen.state = task.rng_state
+    rng = np.random.Generator(bit_gen)
+    state = MHState(pos, float(logdensity), int(task.sweep))
+    positions, logliks, infos = [], [], []
+    for _ in range(task.n_sweeps):
+        state, inf = sweep(rng, state, lik, task.bounds, task.proposal, task.speedups)
+        positions.append(state.position.copy())
+        logliks.append(state.logdensity)
+        infos.extend(inf)
+    dim = len(pos)
+    return {"chain": task.chain, "positions": np.array(positions, float).reshape(-1, dim),
+            "logliks": np.array(logliks, float), "position": state.position, "logdensity": float(state.logdensity),
+            "sweep": int(state.sweep), "rng": bit_gen.state, "evaluated": evaluated,
+            "site": np.array([i.site for i in infos], np.int8),
+            "proposal": np.array([i.proposal for i in infos], float).reshape(-1, dim),
+            "proposal_loglik": np.array([i.logdensity for i in infos], float),
+            "accepted": np.array([i.accepted for i in infos], bool),
+            "early_stop": np.array([i.early_stop for i in infos], bool),
+            "width": np.array([i.width for i in infos], float),
+            "steps": lik.steps - steps0, "seconds": time.perf_counter() - t0}
+
+
+def first_task(problem: Problem, chain: int, start, seed: int, n_sweeps: int, settings: Settings,
+               names: Sequence[str], speedups: bool = True) -> ChainTask:
+    """The task that starts chain `chain` of a run seeded with `seed` at `start`."""
+    return ChainTask(problem, chain, np.asarray(start, float), None, 0, chain_rng(seed, chain).bit_generator.state,
+                     n_sweeps, settings.bounds_array(names), settings.proposal(), settings.noise, speedups)
+
+
+# -- executors ---------------------------------------------------------------------------------------
+
+def _ignore_sigint() -> None:
+    import signal
+
+    if mp.parent_process() is not None:  # in a worker: Ctrl-C is the parent's to handle
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _ping(_=None) -> int:
+    return os.getpid()
+
+
+class InProcess:
+    """The executor of `workers=1`: tasks run here, one after another (starting, like a new
+    pool, without likelihoods kept from earlier runs)."""
+
+    workers = 1
+
+    def __init__(self):
+        _likelihoods.clear()
+
+    def map(self, fn, iterable: Iterable):
+        return map(fn, iterable)
+
+    def shutdown(self) -> None:
+        pass
+
+
+class LocalPool:
+    """Forked worker processes (each with its own pybullet client and likelihood cache),
+    all started at once from the calling thread before any other thread can exist."""
+
+    def __init__(self, workers: int):
+        self.workers = int(workers)
+        self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("fork"), initializer=_ignore_sigint)
+        try:
+            for f in [self._pool.submit(_ping) for _ in range(self.workers)]:
+                f.result()
+        except BrokenProcessPool as e:
+            raise GalileoError(f"inference workers failed to start: {e}") from None
+
+    def map(self, fn, iterable: Iterable):
+        try:
+            yield from self._pool.map(fn, iterable)
+        except BrokenProcessPool as e:
+            raise GalileoError(f"an inference worker died: {e}") from None
+
+    def shutdown(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+def local_executor(workers: int | None, n_tasks: int | None = None):
+    """LocalPool with `workers` processes (None: all cores; no more than the tasks), or
+    InProcess for one."""
+    n = max(1, int(workers or os.cpu_count() or 1))
+    if n_tasks is not None:
+        n = max(1, min(n, n_tasks))
+    return InProcess() if n == 1 else LocalPool(n)
+
+
+# -- the batch run -----------------------------------------------------------------------------------
+
+def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=None, progress: bool = True):
+    """Run `config.chains` chains of `config.sweeps` sweeps on a video's tracks; an
+    `InferenceResult` (MAP, posterior, diagnostics, every proposal)."""
+    from .results import InferenceResult
+
+    cfg = config or RunConfig()
+    cfg.check()
+    t0 = time.perf_counter()
+    scenario = registry.of(scene)
+    prepared = scenario.prepare(scene, tracks)
+    latents = scenario.latents(prepared)
+    names = tuple(lat.name for lat in latents)
+    try:
+        settings = cfg.settings(latents, scenario.noise)
+    except ValueError as e:
+        raise GalileoError(str(e)) from None
+    starts = initial_positions(settings.bounds_array(names), cfg.chains, cfg.seed)
+    problem = Problem.of(scene, tracks)
+    tasks = [first_task(problem, c, starts[c], cfg.seed, cfg.sweeps, settings, names, cfg.speedups)
+             for c in range(cfg.chains)]
+    own = executor is None
+    if own:
+        executor = local_executor(cfg.workers, cfg.chains)
+    workers = getattr(executor, "workers", 1)
+    results = []
+    try:
+        with tqdm(total=cfg.chains, desc="chains", unit="chain", disable=not progress) as bar:
+            for r in executor.map(run_task, tasks):
+                results.append(r)
+                bar.update()
+    finally:
+        if own:
+            executor.shutdown()
+    results.sort(key=lambda r: r["chain"])
+    proposals = {k: np.stack([r[k] for r in results]) for k in PROPOSAL_FIELDS}
+    wall = time.perf_counter() - t0
+    return InferenceResult(
+        scenario=scenario.name, names=names, samples=np.stack([r["positions"] for r in results]),
+        logliks=np.stack([r["logliks"] for r in results]), starts=starts, proposals=proposals, config=cfg,
+        settings=settings, timing_s={"wall": wall, "chains_cpu": float(sum(r["seconds"] for r in results)),
+                                     "workers": workers},
+        steps=int(sum(r["steps"] for r in results)), scene=prepared)
