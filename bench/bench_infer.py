@@ -12,7 +12,7 @@ Both runs use the same scene, tracks, seed and chains, in this process:
 * default: speedups=True (early rejection, at-rest cut-off, prefix reuse), all cores
            (or --workers).
 
-Wall times are of `galileo.inference.infer` (process start-up of the workers included);
+Wall times are of `galileo.runner.infer` (process start-up of the workers included);
 the two runs alternate --repeat times and the medians are compared (this VM's speed drifts
 by up to 30% between identical runs; the range is printed too).
 Physics steps are the stepSimulation calls of all chains. Also reported: whether the two
@@ -34,10 +34,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from galileo.inference import InferenceConfig, infer  # noqa: E402
-from galileo.scenarios.ramp.scene import Scene  # noqa: E402
+from galileo import registry  # noqa: E402
 from galileo.datatypes import Tracks  # noqa: E402
-from galileo.tracking import track  # noqa: E402
+from galileo.runner import RunConfig, infer  # noqa: E402
 
 TARGET_DEFAULT_S = 2.0
 TARGET_SPEEDUP = 10.0
@@ -73,16 +72,16 @@ def main(argv: list[str] | None = None) -> int:
         build("demo", tmp.name, workers=1, progress=False)
         video, scene_path, source = Path(tmp.name) / "demo" / "video.mp4", Path(tmp.name) / "demo" / "scene.json", "demo preset"
     render_s = time.perf_counter() - t0
-    scene = Scene.load(scene_path)
+    scene = registry.load_scene(scene_path)
     t0 = time.perf_counter()
-    tracks = Tracks.load(args.tracks) if args.tracks else track(video, scene, progress=False)
+    tracks = Tracks.load(args.tracks) if args.tracks else registry.of(scene).track(video, scene, progress=False)
     track_s = time.perf_counter() - t0
 
     base = dict(chains=args.chains, sweeps=args.sweeps, seed=args.seed)
     walls_naive, walls_default = [], []
     for _ in range(args.repeat):
-        naive = infer(scene, tracks, InferenceConfig(speedups=False, workers=1, **base), progress=False)
-        default = infer(scene, tracks, InferenceConfig(speedups=True, workers=args.workers, **base), progress=False)
+        naive = infer(scene, tracks, RunConfig(speedups=False, workers=1, **base), progress=False)
+        default = infer(scene, tracks, RunConfig(speedups=True, workers=args.workers, **base), progress=False)
         walls_naive.append(naive.timing_s["wall"])
         walls_default.append(default.timing_s["wall"])
 

@@ -26,9 +26,7 @@ def main() -> int:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     from galileo.scenarios.ramp.dataset import build
-    from galileo.scenarios.ramp.likelihood import scene_for_inference
-    from galileo.scenarios.ramp.scene import Scene
-    from galileo.tracking import track
+    from galileo import registry
     from galileo.video import read_video
     from ui.controller import Controller
     from ui.viewer import Viewer
@@ -36,15 +34,15 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         build("demo", tmp, workers=1, progress=False)
         folder = Path(tmp) / "demo"
-        scene = Scene.load(folder / "scene.json")
-        tracks = track(folder / "video.mp4", scene, progress=False)
+        scene = registry.load_scene(folder / "scene.json")
+        tracks = registry.of(scene).track(folder / "video.mp4", scene, progress=False)
         ctrl = Controller(scene, tracks, chains=4, seed=0, workers=1, session_dir=Path(tmp) / "session")
         ctrl.run_sweeps(10)
         video, _ = read_video(folder / "video.mp4")
         with socket.socket() as s:
             s.bind(("127.0.0.1", 0))
             port = s.getsockname()[1]
-        viewer = Viewer(ctrl, scene_for_inference(scene, tracks), tracks, video, port=port)
+        viewer = Viewer(ctrl, ctrl.likelihood_scene, tracks, video, port=port)
         viewer.set_frame(viewer.n_frames // 2)
         rng = np.random.default_rng(0)
         times = []

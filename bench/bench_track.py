@@ -1,4 +1,4 @@
-"""Tracking speed: `galileo.tracking.track` end to end against the bare OpenCV calls it makes.
+"""Tracking speed: `galileo.scenarios.ramp.tracking.track` end to end against the bare OpenCV calls it makes.
 
 Usage (from the repository root):
     python bench/bench_track.py [--video V --scene S] [--repeats 5] [--json]
@@ -27,7 +27,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from galileo.scenarios.ramp.scene import Scene  # noqa: E402
-from galileo.tracking import MOG_SCALE, track  # noqa: E402
+from galileo.scenarios.ramp.tracking import track  # noqa: E402
+from galileo.vision.background import MOG_SCALE  # noqa: E402
 from galileo.video import read_video_yuv  # noqa: E402
 
 

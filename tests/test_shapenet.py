@@ -3,8 +3,8 @@ training), and a negative control showing it uses appearance, not just the silho
 import numpy as np
 import pytest
 
-from galileo import shapenet
-from galileo.shapes import SHAPE_TYPES
+from galileo.vision import shapenet
+from galileo.vision.shapenet import LABELS
 
 pytestmark = pytest.mark.skipif(not shapenet.available(), reason="no shapenet weights")
 
@@ -21,7 +21,7 @@ def test_weights_load_without_pickle():
 
 def test_recognises_fresh_renders(fresh):
     crops, scalars, labels = fresh
-    pred = np.array([SHAPE_TYPES.index(shapenet.predict(c, s)[0]) for c, s in zip(crops, scalars)])
+    pred = np.array([LABELS.index(shapenet.predict(c, s)[0]) for c, s in zip(crops, scalars)])
     acc = (pred == labels).mean()
     # held-out accuracy measured on 300 fresh renders is in BENCHMARKS.md; with n = 36 and
     # p ~ 0.93 the SD is 0.04, so 0.8 is more than 3 SD below
@@ -32,10 +32,10 @@ def test_without_appearance_box_and_cylinder_blur(fresh):
     """Negative control: with the grey channel blanked only the silhouette is left, and side
     views of boxes and cylinders coincide."""
     crops, scalars, labels = fresh
-    sel = labels != SHAPE_TYPES.index("torus")
+    sel = labels != LABELS.index("torus")
     blank = crops[sel].copy()
     blank[:, 0] = 0.0
-    pred = np.array([SHAPE_TYPES.index(shapenet.predict(c, s)[0]) for c, s in zip(blank, scalars[sel])])
-    with_appearance = np.array([SHAPE_TYPES.index(shapenet.predict(c, s)[0])
+    pred = np.array([LABELS.index(shapenet.predict(c, s)[0]) for c, s in zip(blank, scalars[sel])])
+    with_appearance = np.array([LABELS.index(shapenet.predict(c, s)[0])
                                 for c, s in zip(crops[sel], scalars[sel])])
     assert (pred == labels[sel]).mean() < (with_appearance == labels[sel]).mean()

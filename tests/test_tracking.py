@@ -8,10 +8,11 @@ from galileo.cli import main
 from galileo.errors import GalileoError
 from galileo.datatypes import Trajectory
 from galileo.scenarios.ramp.scene import Scene, default_camera, default_scene
-from galileo.track_eval import score
+from galileo.scenarios.ramp.track_eval import score
 from galileo.camera import backproject_to_plane
 from galileo.datatypes import Tracks
-from galileo.tracking import track, velocity_from_positions
+from galileo.scenarios.ramp.tracking import track
+from galileo.vision.velocity import velocity_from_positions
 from galileo.video import read_video, write_video
 
 
@@ -200,7 +201,7 @@ def test_small_preset_accuracy(tmp_path):
     collision, shape type right for >= 80% of ramp objects. Videos in which nothing moves
     must be refused with a clear error."""
     from galileo.scenarios.ramp.dataset import build
-    from galileo.track_eval import aggregate, evaluate_folder
+    from galileo.scenarios.ramp.track_eval import aggregate, evaluate_folder
 
     entries = build("small", tmp_path, seed=0, progress=False)
     scores, refused = [], 0

@@ -5,7 +5,6 @@ visual shapes made from `galileo.shapes` shapes."""
 from __future__ import annotations
 
 import ctypes
-import math
 import multiprocessing.util as mp_util
 import os
 import shutil
@@ -16,7 +15,7 @@ from typing import Any, Callable
 
 import trimesh
 
-from ..shapes import Shape, render_mesh, torus_convex_parts
+from ..shapes import CollisionHulls, Shape
 
 
 def _import_quietly():
@@ -91,28 +90,27 @@ def scratch_dir() -> Path:
 
 
 def collision_shape(shape: Shape, cid: int) -> int:
-    """A Bullet collision shape for `shape` in its object frame (see `galileo.shapes`)."""
-    sx, sy, sz = shape.size_m
-    if shape.type == "box":
-        return pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[sx / 2, sy / 2, sz / 2], physicsClientId=cid)
-    if shape.type == "cylinder":
-        # Bullet's cylinder runs along z; ours lies along x
-        q = pb.getQuaternionFromEuler([0, math.pi / 2, 0])
-        return pb.createCollisionShape(pb.GEOM_CYLINDER, radius=sy / 2, height=sx,
-                                       collisionFrameOrientation=q, physicsClientId=cid)
-    files = []
-    d = scratch_dir()
-    for i, pts in enumerate(torus_convex_parts(shape)):
-        f = d / f"torus_{sx:.6f}_{sz:.6f}_{i}.obj"
-        if not f.exists():
-            trimesh.convex.convex_hull(pts).export(f)
-        files.append(str(f))
-    n = len(files)
-    return pb.createCollisionShapeArray([pb.GEOM_MESH] * n, fileNames=files, meshScales=[[1, 1, 1]] * n,
-                                        physicsClientId=cid)
+    """A Bullet collision shape for `shape` in its object frame, as the shape describes it
+    (`Shape.collision`: one primitive, or a compound of convex hulls)."""
+    c = shape.collision()
+    if isinstance(c, CollisionHulls):
+        files = []
+        d = scratch_dir()
+        for i, pts in enumerate(c.parts):
+            f = d / f"{c.name}_{i}.obj"
+            if not f.exists():
+                trimesh.convex.convex_hull(pts).export(f)
+            files.append(str(f))
+        n = len(files)
+        return pb.createCollisionShapeArray([pb.GEOM_MESH] * n, fileNames=files, meshScales=[[1, 1, 1]] * n,
+                                            physicsClientId=cid)
+    args = dict(c.args)
+    if c.frame_euler is not None:
+        args["collisionFrameOrientation"] = pb.getQuaternionFromEuler(list(c.frame_euler))
+    return pb.createCollisionShape(getattr(pb, f"GEOM_{c.geom.upper()}"), **args, physicsClientId=cid)
 
 
 def visual_shape(shape: Shape, cid: int) -> int:
-    m = render_mesh(shape)
+    m = shape.render_mesh()
     return pb.createVisualShape(pb.GEOM_MESH, vertices=m.vertices.tolist(), indices=m.indices.tolist(),
                                 uvs=m.uvs.tolist(), normals=m.normals.tolist(), physicsClientId=cid)

@@ -24,7 +24,7 @@ from ...jsonio import write_json
 from ...datatypes import Trajectory
 from .predict import slides
 from .scene import Scene
-from ...tracking import track
+from .tracking import track
 
 MOVED_M = 0.005
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...shapes import Shape
+from ...shapes import Shape, shape_class
 
 
 @dataclass(frozen=True)
@@ -61,13 +61,7 @@ class CatalogueObject:
 
 
 def _sample_shape(rng: np.random.Generator, kind: str, ranges) -> Shape:
-    x = rng.uniform(*ranges[0])
-    if kind == "box":
-        return Shape(kind, (x, rng.uniform(*ranges[1]), rng.uniform(*ranges[2])))
-    if kind == "cylinder":
-        d = rng.uniform(*ranges[1])
-        return Shape(kind, (x, d, d))
-    return Shape(kind, (x, x, min(rng.uniform(*ranges[2]), 0.4 * x)))
+    return shape_class(kind).sample(lambda axis: rng.uniform(*ranges[axis]))
 
 
 def make_object(material: Material, index: int, rng: np.random.Generator, max_mass_kg: float = 0.95) -> CatalogueObject:

@@ -11,7 +11,7 @@ Coulomb coefficient against the ramp and the ground. Between two objects the
 coefficient is the product k1 * k2 (and the restitution the product e1 * e2).
 Linear and angular damping are 0 (Bullet's default 0.04 would slow a sliding block by
 about 2% against Newton); rolling and spinning friction are 0 but for cylinders (see
-CYLINDER_ROLLING_FRICTION); sleeping is disabled and a reset drops the previous run's
+`galileo.shapes.CYLINDER_ROLLING_FRICTION`); sleeping is disabled and a reset drops the previous run's
 contacts, so a reused world reproduces a freshly built one bit for bit.
 """
 from __future__ import annotations
@@ -26,11 +26,6 @@ from ...sim.bullet import cached_world, client, collision_shape, pb, visual_shap
 from .scene import Scene
 
 GROUND_SIZE_M = (8.0, 4.0, 0.1)
-# A round cylinder lying along the fall line is neutrally stable across the ramp; Bullet's
-# contact noise rolls it sideways (0.7 m off a 10 degree ramp in 4 s). A tiny rolling
-# friction on cylinders stops that and leaves sliding untouched (no rolling, no torque).
-# (Other shapes get none: rolling friction doubles the cost of a step.)
-CYLINDER_ROLLING_FRICTION = 0.0005
 # Constraint-solver iterations per step: Bullet's own default (pybullet raises it to 50).
 # The Newton checks hold as tightly with 10 (tests/test_physics.py) at half the cost.
 SOLVER_ITERATIONS = 10
@@ -75,8 +70,7 @@ class _World:
             b = pb.createMultiBody(obj.mass_kg, collision_shape(obj.shape, cid),
                                    visual_shape(obj.shape, cid) if visual else -1,
                                    basePosition=pos.tolist(), baseOrientation=list(orn), physicsClientId=cid)
-            rolling = CYLINDER_ROLLING_FRICTION if obj.shape.type == "cylinder" else 0.0
-            pb.changeDynamics(b, -1, linearDamping=0.0, angularDamping=0.0, rollingFriction=rolling,
+            pb.changeDynamics(b, -1, linearDamping=0.0, angularDamping=0.0, rollingFriction=obj.shape.rolling_friction,
                               spinningFriction=0.0, activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING,
                               physicsClientId=cid)
             self.bodies.append(b)

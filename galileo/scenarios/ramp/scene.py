@@ -23,7 +23,7 @@ from ...errors import SceneError
 from ...fields import field_value, matrix, number, pair
 from ...jsonio import read_json, write_json
 from ...latents import Latent, check_bounds
-from ...shapes import SHAPE_TYPES, Shape
+from ...shapes import SHAPE_TYPES, Shape, shape_class
 
 SCENE_VERSION = 1
 ROLES = ("ramp", "target")
@@ -81,13 +81,7 @@ class Priors:
     def sample_shape(self, rng: np.random.Generator) -> Shape:
         kind = self.shape_types[int(rng.integers(len(self.shape_types)))]
         lo, hi = self.size_m
-        sx, sy, sz = rng.uniform(lo, hi, 3)
-        if kind == "cylinder":
-            sz = sy
-        elif kind == "torus":
-            sy = sx = max(sx, sy)
-            sz = min(sz, 0.45 * sx)
-        return Shape(kind, (sx, sy, sz))
+        return shape_class(kind).from_uniform_sizes(*rng.uniform(lo, hi, 3))
 
     def with_bounds(self, **bounds: tuple[float, float]) -> "Priors":
         new = dict(self.bounds)

@@ -7,9 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .datatypes import Trajectory
-from .scenarios.ramp.scene import Scene
-from .datatypes import Tracks
+from ...datatypes import Tracks, Trajectory
+from .scene import Scene
 from .tracking import track
 
 MOVING_MPS = 0.02  # a frame counts as "moving" for an object whose true speed exceeds this

@@ -2,8 +2,8 @@
 
 Side views of a box and of a cylinder lying along the fall line have the same silhouette,
 so the tracker's shape type comes from appearance: a small CNN over the object's crop
-(`galileo.tracking.shape_crop`: grey level standardised inside the silhouette, and the
-silhouette, rotated so the support runs horizontally) plus two scalars measured from the
+(`shape_crop`: grey level standardised inside the silhouette, and the silhouette,
+rotated so the support runs horizontally) plus two scalars measured from the
 silhouette (log of length / height and log of height in metres).
 
 It is trained on the generative model's own renders (Helmholtz-style: random shapes,
@@ -11,8 +11,8 @@ sizes, materials' colours, ramp angles, offsets and lighting, rendered through t
 dataset camera), with the silhouette perturbed as background subtraction perturbs it.
 Weights ship as a plain NPZ (no pickle):
 
-    python -m galileo.shapenet train --n 3000 --seed 0 --out galileo/data/shapenet.npz
-    python -m galileo.shapenet eval --n 300 --seed 123
+    python -m galileo.vision.shapenet train --n 3000 --seed 0 --out galileo/data/shapenet.npz
+    python -m galileo.vision.shapenet eval --n 300 --seed 123
 """
 from __future__ import annotations
 
@@ -26,10 +26,58 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .shapes import SHAPE_TYPES, Shape
+from ..camera import Camera, backproject_to_plane
+from ..shapes import Shape, shape_class
+from .silhouette import pixel_hull
 
-WEIGHTS = Path(__file__).resolve().parent / "data" / "shapenet.npz"
-WIDEN = 0.2  # size ranges of the training shapes: the materials' ranges widened by 20%
+WEIGHTS = Path(__file__).resolve().parents[1] / "data" / "shapenet.npz"
+LABELS = ("box", "cylinder", "torus")  # the network's outputs, in order (the weights fix them)
+CROP_HW = (32, 64)         # the crop the network reads (height, width)
+CROP_PAD_PX = 3            # margin around the silhouette's box
+MIN_LENGTH_M = 1e-3        # scalars: lengths and heights floored at this
+HEIGHT_SCALE_M = 0.03      # scalars: log height relative to this
+WIDEN = 0.2                # size ranges of the training shapes: the materials' ranges widened by 20%
+MIN_TRAIN_SIZE_M = 0.008   # ... but no training size below this
+
+
+# -- the network's input --------------------------------------------------------------------
+
+def support_direction_px(cam: Camera, along_xz: np.ndarray, at_world: np.ndarray) -> float:
+    """Angle (radians, image frame) of a support surface's direction `along_xz` (world x, z)
+    at a point."""
+    p0 = np.asarray(at_world, float)
+    p1 = p0 + 0.05 * np.array([along_xz[0], 0.0, along_xz[1]])
+    uv = cam.project(np.stack([p0, p1]))
+    d = uv[1] - uv[0]
+    return math.atan2(d[1], d[0])
+
+
+def shape_crop(rgb: np.ndarray, mask: np.ndarray, cam: Camera, along_xz: np.ndarray) -> np.ndarray:
+    """The object's appearance normalised for the shape classifier: (2, 32, 64) float32.
+
+    The frame is rotated about the silhouette's centre so the support surface (direction
+    `along_xz` in world x, z) runs horizontally, cropped to the silhouette's box (3 px
+    margin) and resized; channel 0 is grey level standardised inside the silhouette,
+    channel 1 the silhouette.
+    """
+    ys, xs = np.nonzero(mask)
+    cx, cy = float(xs.mean()), float(ys.mean())
+    centre_w = backproject_to_plane(cam, np.array([[cx, cy]]), 0.0)[0]
+    ang = math.degrees(support_direction_px(cam, along_xz, centre_w))
+    rot = cv2.getRotationMatrix2D((cx, cy), ang, 1.0)
+    h, w = mask.shape
+    gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    g = cv2.warpAffine(gray, rot, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    m = cv2.warpAffine(mask.astype(np.float32), rot, (w, h), flags=cv2.INTER_LINEAR)
+    ys, xs = np.nonzero(m > 0.5)
+    pad = CROP_PAD_PX
+    x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, w)
+    y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, h)
+    g = cv2.resize(g[y0:y1, x0:x1], CROP_HW[::-1], interpolation=cv2.INTER_AREA)
+    m = cv2.resize(m[y0:y1, x0:x1], CROP_HW[::-1], interpolation=cv2.INTER_AREA)
+    inside = g[m > 0.5]
+    mu, sd = (float(inside.mean()), float(inside.std()) + 1.0) if inside.size else (float(g.mean()), 1.0)
+    return np.stack([(g - mu) / sd, m]).astype(np.float32)
 
 
 # -- the network -------------------------------------------------------------------------------
@@ -45,7 +93,7 @@ def _net():
                 nn.Conv2d(2, 16, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2),
                 nn.Conv2d(16, 32, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2),
                 nn.Conv2d(32, 32, 3, padding=1), nn.ReLU(), nn.AdaptiveAvgPool2d((2, 4)))
-            self.head = nn.Sequential(nn.Linear(32 * 8 + 2, 48), nn.ReLU(), nn.Linear(48, len(SHAPE_TYPES)))
+            self.head = nn.Sequential(nn.Linear(32 * 8 + 2, 48), nn.ReLU(), nn.Linear(48, len(LABELS)))
 
         def forward(self, crop, scalars):
             return self.head(torch.cat([self.features(crop).flatten(1), scalars], 1))
@@ -71,7 +119,7 @@ def available() -> bool:
 
 
 def scalars_of(length_m: float, height_m: float) -> np.ndarray:
-    return np.array([math.log(length_m / height_m), math.log(height_m / 0.03)], np.float32)
+    return np.array([math.log(length_m / height_m), math.log(height_m / HEIGHT_SCALE_M)], np.float32)
 
 
 def predict(crop: np.ndarray, scalars: np.ndarray) -> tuple[str, dict[str, float]]:
@@ -84,40 +132,43 @@ def predict(crop: np.ndarray, scalars: np.ndarray) -> tuple[str, dict[str, float
     with torch.no_grad():
         logits = net(torch.from_numpy(crop[None].astype(np.float32)), torch.from_numpy(scalars[None]))
         p = torch.softmax(logits, 1)[0].numpy()
-    return SHAPE_TYPES[int(p.argmax())], {t: float(v) for t, v in zip(SHAPE_TYPES, p)}
+    return LABELS[int(p.argmax())], {t: float(v) for t, v in zip(LABELS, p)}
+
+
+def classify(rgb: np.ndarray, mask: np.ndarray, cam: Camera, along_xz: np.ndarray, length_m: float,
+             height_m: float) -> str:
+    """box / cylinder / torus from the object's appearance; "" without the weights (the
+    caller then takes the shape whose projected silhouette fits best)."""
+    if available():
+        crop = shape_crop(rgb, mask, cam, along_xz)
+        return predict(crop, scalars_of(max(length_m, MIN_LENGTH_M), max(height_m, MIN_LENGTH_M)))[0]
+    return ""
 
 
 # -- training data from the generative model ------------------------------------------------------
 
 def _random_shape(rng: np.random.Generator, kind: str) -> Shape:
-    from .scenarios.ramp.materials import MATERIALS
+    from ..scenarios.ramp.materials import MATERIALS
 
     options = [(m, r) for m in MATERIALS for k, r in m.shapes if k == kind]
     mat, ranges = options[int(rng.integers(len(options)))]
 
-    def draw(r):
-        lo, hi = r
+    def draw(axis):
+        lo, hi = ranges[axis]
         span = hi - lo
-        return float(rng.uniform(max(lo - WIDEN * span, 0.008), hi + WIDEN * span))
+        return float(rng.uniform(max(lo - WIDEN * span, MIN_TRAIN_SIZE_M), hi + WIDEN * span))
 
-    x = draw(ranges[0])
-    if kind == "box":
-        return Shape("box", (x, draw(ranges[1]), draw(ranges[2])))
-    if kind == "cylinder":
-        d = draw(ranges[1])
-        return Shape("cylinder", (x, d, d))
-    return Shape("torus", (x, x, min(draw(ranges[2]), 0.4 * x)))
+    return shape_class(kind).sample(draw)
 
 
 def _example(seed: int):
     """One rendered training example: (crop, scalars, label)."""
-    from .scenarios.ramp.render import Look, Renderer
-    from .scenarios.ramp.scene import Ramp, Scene, SceneObject, default_camera
-    from .tracking import shape_crop
+    from ..scenarios.ramp.render import Look, Renderer
+    from ..scenarios.ramp.scene import Ramp, Scene, SceneObject, default_camera
 
     rng = np.random.default_rng(seed)
-    label = int(rng.integers(len(SHAPE_TYPES)))
-    shape = _random_shape(rng, SHAPE_TYPES[label])
+    label = int(rng.integers(len(LABELS)))
+    shape = _random_shape(rng, LABELS[label])
     color = tuple(int(c) for c in rng.integers(30, 250, 3))
     obj = SceneObject("ramp_object", "ramp", shape, 0.1, 0.2, offset_units=int(rng.integers(-5, 6)))
     scene = Scene(Ramp(angle_deg=float(rng.uniform(8, 25))), (obj,), camera=default_camera())
@@ -130,14 +181,11 @@ def _example(seed: int):
         mask = cv2.dilate(mask, np.ones((3, 3), np.uint8))
     elif k == 2:
         mask = cv2.erode(mask, np.ones((3, 3), np.uint8))
-    ys, xs = np.nonzero(mask)
-    if len(xs) < 10:
+    if np.count_nonzero(mask) < 10:
         return None
-    hull = np.zeros_like(mask)
-    cv2.fillConvexPoly(hull, cv2.convexHull(np.c_[xs, ys].astype(np.int32)), 1)
     noise = rng.normal(1.0, 0.08, 2)
     sc = scalars_of(shape.size_m[0] * noise[0], shape.size_m[2] * noise[1])
-    return shape_crop(rgb, hull > 0, scene, "ramp"), sc, label
+    return shape_crop(rgb, pixel_hull(mask), scene.camera, scene.ramp.downhill[[0, 2]]), sc, label
 
 
 def make_examples(n: int, seed: int, workers: int | None = None, progress: bool = True):
@@ -166,7 +214,7 @@ def make_examples(n: int, seed: int, workers: int | None = None, progress: bool 
 def train(out_path: str | Path, n: int = 3000, seed: int = 0, epochs: int = 40, progress: bool = True) -> dict:
     import torch
 
-    from .jsonio import atomic_write_bytes
+    from ..jsonio import atomic_write_bytes
 
     crops, scalars, labels = make_examples(n, seed, progress=progress)
     torch.manual_seed(seed)
@@ -200,8 +248,8 @@ def train(out_path: str | Path, n: int = 3000, seed: int = 0, epochs: int = 40, 
 
 def evaluate(n: int = 300, seed: int = 123, progress: bool = True) -> dict:
     crops, scalars, labels = make_examples(n, seed, progress=progress)
-    pred = np.array([SHAPE_TYPES.index(predict(c, s)[0]) for c, s in zip(crops, scalars)])
-    confusion = np.zeros((3, 3), int)
+    pred = np.array([LABELS.index(predict(c, s)[0]) for c, s in zip(crops, scalars)])
+    confusion = np.zeros((len(LABELS), len(LABELS)), int)
     for t, p in zip(labels, pred):
         confusion[t, p] += 1
     return {"n": int(len(labels)), "accuracy": float((pred == labels).mean()),
@@ -209,7 +257,7 @@ def evaluate(n: int = 300, seed: int = 123, progress: bool = True) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m galileo.shapenet", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m galileo.vision.shapenet", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     t = sub.add_parser("train")
     t.add_argument("--n", type=int, default=3000)

@@ -1,0 +1,362 @@
+"""Ramp tracking: pixels -> observations (Galileo section 3.1, splash abstract's bottom-up model).
+
+Pipeline, for a video and a scene file whose camera describes it:
+
+1. Background model: OpenCV MOG2 with five mixture components, learned from the video
+   itself. Backwards over the last third at half resolution, it gives the scene as it
+   ends: at frame 0 that shows every object that later leaves its start (a forward model
+   cannot, it starts from frame 0). Forwards over all frames at quarter resolution, it
+   gives the scene as it starts, against which the last frame shows whether anything moved.
+2. Detection and roles: the ramp object is the uphill-most foreground component at frame 0
+   within the band of start positions its offset prior allows (the frame-0 foreground also
+   holds "ghosts" where objects come to rest later); the target is where the scene file
+   puts it, with the size it states.
+3. Bottom-up recognition: from the frame-0 silhouette, the shape type from the object's
+   appearance (a small CNN, `galileo.vision.shapenet`; side views of boxes and cylinders have the
+   same silhouette) and per-axis size in metres and the ramp object's offset in units from
+   fitting the projected 3-D shape to the silhouette. These fix those latents during MCMC.
+4. KLT per object: good features inside the object's silhouette, pyramidal Lucas-Kanade
+   started from a constant-velocity prediction, a forward-backward check, re-seeding
+   inside the object's predicted silhouette (away from the other object) when fewer than
+   half the features survive, and re-acquisition among moving pixels when it is lost.
+5. Pose per frame: every feature is ray-cast at seeding into the estimated 3-D shape; the
+   planar pose (centre in the fall-line plane and rotation about y) minimises the
+   reprojection error of those points (Gauss-Newton with iterative outlier rejection:
+   features that slid onto the other object or the background drop out). This is robust
+   to lost and wrong features, to perspective and to the object tipping at the ramp's
+   foot, where a median of displacements is not.
+6. Positions in metres (world frame), velocities by central differences (one-sided at the
+   ends of a visible run), no smoothing. Frames where an object is not seen are marked
+   `visible: false` with null position and velocity, never invented.
+
+The steps' general parts live in `galileo.vision` (background, silhouette, klt, pose,
+tracker, velocity, shapenet); this module holds what is the ramp's own: where objects
+rest (the ramp or the ground), where the ramp object may start, and the orchestration.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from ...camera import backproject_to_plane
+from ...datatypes import ObjectTrack, Tracks
+from ...errors import GalileoError
+from ...shapes import SHAPE_TYPES, Shape, shape_class
+from ...video import read_video_yuv, yuv_to_rgb
+from ...vision import shapenet
+from ...vision.background import (MOG_SCALE, blobs, clean, dilate, erode, foreground, full_res, largest_component,
+                                  mog2_background, noise_sd, resize_to, shrink)
+from ...vision.draw import draw_tracks
+from ...vision.klt import flow
+from ...vision.pose import rot_y
+from ...vision.silhouette import fill_polygon, fit_silhouette, project_silhouette, slide_silhouette
+from ...vision.tracker import ObjectTracker
+from ...vision.velocity import velocity_from_positions
+from .scene import Scene
+
+END_MODEL_MIN_FRAMES = 10  # the end's background model: the last third of the video, at least this many frames
+END_MODEL_PART = 3
+START_MODEL_SCALE = 0.5    # the start's background model runs at this scale of MOG_SCALE (quarter resolution)
+NEAR_PX = 5                # full-resolution frame-0 foreground: within 2 px of the half-resolution one
+BAND_FLOOR_M = 0.002       # the band of start positions begins this far above the ramp's surface
+MIN_AREA_FRACTION = 0.25   # detection: components smaller than this fraction of the largest are noise
+MIN_INIT_M = 0.005         # silhouette fit: sizes start at least this large
+MIN_HEIGHT_M = 1e-3        # measured height floored at this
+FIT_PAD_PX = 30            # silhouette fit: margin around the observed silhouette
+RELOCATE_PAD_PX = 20       # re-acquisition: margin around the blob ...
+RELOCATE_RANGE_M = 0.05    # ... and how far along its support the object may be from the blob's centre
+OTHERS_MARGIN_PX = 9       # features keep off other objects' predicted silhouettes grown by this
+REACQUIRE_PX = 31          # a lost object is searched for in its predicted silhouette grown by this
+RESEED_ERODE_PX = 5        # re-seeding stays this far inside the predicted silhouette
+ROLE_COLORS = {"ramp": (255, 80, 40), "target": (40, 160, 255)}  # debug video
+
+
+# -- the ramp's geometry ------------------------------------------------------------------------
+
+@dataclass
+class _Frame0:
+    """An object's silhouette at frame 0, measured in its support frame."""
+    mask: np.ndarray
+    shape: Shape
+    center_xz: np.ndarray     # object centre (world x, z)
+    phi0: float               # orientation of the object x axis in the x-z plane
+    s_along_m: float | None   # ramp object: distance of its centre up the ramp
+
+
+def support_frame(scene: Scene, role: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """Unit vectors (x-z) along the support surface (downhill) and its normal, and phi."""
+    if role == "ramp":
+        a = scene.ramp.angle_rad
+        return np.array([math.cos(a), -math.sin(a)]), np.array([math.sin(a), math.cos(a)]), -a
+    return np.array([1.0, 0.0]), np.array([0.0, 1.0]), 0.0
+
+
+def _pose_on_support(scene: Scene, role: str, along_m: float, height_m: float):
+    """Centre (world) and rotation of an object resting on its support, `along_m` along it."""
+    if role == "ramp":
+        r = scene.ramp
+        return -along_m * r.downhill + (height_m / 2) * r.normal, rot_y(r.angle_rad)
+    return np.array([along_m, 0.0, height_m / 2]), np.eye(3)
+
+
+def _resting(scene: Scene, role: str, shape_of, along_of):
+    """posed(p) for the silhouette fits: the shape `shape_of(p)` resting on the support,
+    `along_of(p)` along it."""
+    def posed(p):
+        shape = shape_of(p)
+        centre, rot = _pose_on_support(scene, role, along_of(p), shape.height_m)
+        return shape, rot, centre
+
+    return posed
+
+
+# -- bottom-up recognition ------------------------------------------------------------------
+
+def _fit_silhouette(scene: Scene, role: str, mask: np.ndarray, kind: str, init: tuple[float, float, float, float]):
+    """Least 1 - IoU between the observed silhouette and the projected 3-D shape.
+
+    Unknowns: position along the support, and sizes (length, depth, height); the depth is
+    seen through perspective (the end face of an object off the camera axis).
+    """
+    cls = shape_class(kind)
+
+    def shape_of(p):
+        length, depth, height = np.exp(p[1:4])
+        return cls.from_measured(length, depth, height)
+
+    p0 = np.array([init[0], *np.log(init[1:])])
+    res = fit_silhouette(scene.camera, mask, _resting(scene, role, shape_of, lambda p: p[0]), p0, FIT_PAD_PX)
+    return float(res.x[0]), shape_of(res.x), float(res.fun)
+
+
+def _measure(scene: Scene, role: str, mask: np.ndarray, rgb: np.ndarray) -> _Frame0:
+    cam = scene.camera
+    along, normal, phi0 = support_frame(scene, role)
+    ys, xs = np.nonzero(mask)
+    w = backproject_to_plane(cam, np.c_[xs, ys].astype(float), 0.0)[:, [0, 2]]
+    a, n = w @ along, w @ normal
+    length, height = float(np.ptp(a)), float(max(n.max(), MIN_HEIGHT_M))
+    mid = float((a.max() + a.min()) / 2)
+    along0 = -mid if role == "ramp" else mid
+    init = (along0, max(length, MIN_INIT_M), max(math.sqrt(length * height), MIN_INIT_M), max(height, MIN_INIT_M))
+    kind = shapenet.classify(rgb, mask, cam, along, length, height)
+    # without the classifier's weights: the shape whose projected silhouette fits best
+    fits = [_fit_silhouette(scene, role, mask, k, init) for k in ((kind,) if kind else SHAPE_TYPES)]
+    along_m, shape, _ = min(fits, key=lambda f: f[2])
+    centre, _ = _pose_on_support(scene, role, along_m, shape.height_m)
+    return _Frame0(mask, shape, centre[[0, 2]], phi0, along_m if role == "ramp" else None)
+
+
+# -- detection ------------------------------------------------------------------------------
+
+def _scene_mask(scene: Scene, index: int) -> np.ndarray:
+    """Silhouette of object `index` where the scene file puts it (its box hull)."""
+    pos, orn = scene.initial_pose(index)
+    # rotation about y by the ramp angle (the only rotation initial poses use)
+    ang = 2 * math.atan2(orn[1], orn[3])
+    return project_silhouette(scene.camera, scene.objects[index].shape.box_corners(), rot_y(ang), pos) > 0
+
+
+def _ramp_band_mask(scene: Scene, lo_m: float, hi_m: float, height_m: float) -> np.ndarray:
+    """Image region above the ramp surface between lo_m and hi_m up the ramp."""
+    cam, r = scene.camera, scene.ramp
+    pts = []
+    for s, h in ((lo_m, BAND_FLOOR_M), (hi_m, BAND_FLOOR_M), (hi_m, height_m), (lo_m, height_m)):
+        p = -s * r.downhill + h * r.normal
+        pts.append(cam.project(p))
+    return fill_polygon(np.round(np.array(pts)).astype(np.int32), (cam.height_px, cam.width_px)) > 0
+
+
+def _uphill_component(scene: Scene, mask: np.ndarray) -> np.ndarray | None:
+    """The foreground component furthest up the ramp, as a convex silhouette.
+
+    A slow object's resting place can lie inside its band of start positions; its ghost
+    there is always downhill of where it started, since objects only slide down.
+    """
+    big = blobs(mask, MIN_AREA_FRACTION)
+    if not big:
+        return None
+
+    def up_the_ramp(blob):
+        ys, xs = np.nonzero(blob)
+        w = backproject_to_plane(scene.camera, np.c_[xs.mean(), ys.mean()], 0.0)[0]
+        return -float(w[[0, 2]] @ support_frame(scene, "ramp")[0])
+
+    return largest_component(max(big, key=up_the_ramp))
+
+def _detect_start(scene: Scene, fg0: np.ndarray) -> dict[str, tuple[np.ndarray, str]]:
+    """Frame-0 silhouettes by role.
+
+    The ramp object is searched in the band of start positions its offset prior allows:
+    the foreground at frame 0 (against the background the video ends with) also holds
+    "ghosts" where objects come to rest later, and these lie elsewhere. The target is
+    where the scene file puts it, with the size it states (its silhouette would merge
+    with the ghost of a ramp object that stops against it).
+    """
+    found: dict[str, tuple[np.ndarray, str]] = {}
+    pri, unit = scene.priors, scene.unit_m
+    lo = (scene.start_units + pri.offset_units[0]) * unit - pri.size_m[1] / 2
+    hi = (scene.start_units + pri.offset_units[1]) * unit + pri.size_m[1] / 2
+    band = _ramp_band_mask(scene, max(lo, 0.0), min(hi, scene.ramp.length_m), pri.size_m[1])
+    blob = _uphill_component(scene, fg0 & band)
+    found["ramp"] = (blob, "motion") if blob is not None else (_scene_mask(scene, 0), "scene")
+    if scene.target is not None:
+        # the scene file states the target's kind, size and place: take them
+        found["target"] = (_scene_mask(scene, 1), "scene")
+    return found
+
+
+def _relocate(scene: Scene, t: ObjectTracker, blob: np.ndarray) -> None:
+    """Find a lost object again: its shape, resting on the ramp or the ground (whichever the
+    blob is over), slid along that surface to fit the blob."""
+    ys, xs = np.nonzero(blob)
+    w = backproject_to_plane(scene.camera, np.array([[xs.mean(), ys.mean()]]), 0.0)[0]
+    role = "ramp" if w[0] < 0 else "target"
+    along, _, phi = support_frame(scene, role)
+    a0 = float(w[[0, 2]] @ along) * (-1 if role == "ramp" else 1)
+    a = slide_silhouette(scene.camera, blob, _resting(scene, role, lambda a: t.shape, lambda a: a),
+                         (a0 - RELOCATE_RANGE_M, a0 + RELOCATE_RANGE_M), RELOCATE_PAD_PX)
+    centre, _ = _pose_on_support(scene, role, a, t.shape.height_m)
+    t.reset(np.array([centre[0], centre[2], -phi]))
+
+
+# -- the whole pipeline ------------------------------------------------------------------------
+
+def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
+          debug_video: str | Path | None = None) -> Tracks:
+    """Track the scene's objects in a video; see the module docstring for the method."""
+    if scene.camera is None:
+        raise GalileoError("the scene file has no camera: tracking needs one that describes the video")
+    cam = scene.camera
+    gray, chroma, info = read_video_yuv(video_path)
+    if info.n_frames < 2:
+        raise GalileoError(f"video {video_path} has only {info.n_frames} frame: need at least 2 to see motion")
+    if (info.width_px, info.height_px) != (cam.width_px, cam.height_px):
+        raise GalileoError(f"video {video_path} is {info.width_px}x{info.height_px} but the scene's camera is "
+                           f"{cam.width_px}x{cam.height_px}")
+    n = len(gray)
+    fps = cam.fps
+    bar = tqdm(total=3 * n, desc="tracking", unit="frame", disable=not progress)
+    # half resolution Y, U, V for the background model (chroma is stored at half resolution)
+    small = np.concatenate([shrink(gray, MOG_SCALE)[..., None], chroma], axis=-1)
+    first_rgb = yuv_to_rgb(gray[0], chroma[0])
+    noise = noise_sd(small)
+    # the scene as it ends: learned from the last third only, so that a slow object's
+    # start is clear of it even if it lingered there for much of the video
+    tail = max(min(END_MODEL_MIN_FRAMES, n), n // END_MODEL_PART)
+    bg_end = mog2_background(small[n - tail:], reverse=True)
+    bar.update(n)
+    # the scene as it starts (forwards over all frames; quarter resolution is enough here)
+    tiny = shrink(small, START_MODEL_SCALE)
+    bg_start = mog2_background(tiny, reverse=False)
+    bar.update(n)
+    full_hw = gray.shape[1:]
+    fg0_small = full_res(foreground(small[0], bg_end, noise), full_hw)
+    fg_last = full_res(foreground(tiny[-1], bg_start, noise), full_hw)
+    if largest_component(fg0_small) is None and largest_component(fg_last) is None:
+        bar.close()
+        raise GalileoError(f"nothing moves in {video_path}: no foreground at the start or the end of the video")
+
+    # frame-0 foreground at full resolution, within 2 px of the robust half-resolution one
+    near = dilate(fg0_small, NEAR_PX)
+    bg_full = resize_to(bg_end, full_hw)
+    first_yuv = np.concatenate([gray[0][..., None], resize_to(chroma[0], full_hw)], -1)
+    fg0 = near & (clean(foreground(first_yuv, bg_full, noise)) > 0)
+    found = _detect_start(scene, fg0)
+
+    trackers: list[ObjectTracker] = []
+    starts: list[tuple[_Frame0, str]] = []
+    offsets: dict[str, int | None] = {}
+    for i, obj in enumerate(scene.objects):
+        mask, how = found[obj.role]
+        if how == "scene":  # not seen apart from the background: where and what the scene file says
+            pos, _ = scene.initial_pose(i)
+            phi0 = support_frame(scene, obj.role)[2]
+            f0 = _Frame0(mask, obj.shape, pos[[0, 2]], phi0, scene.start_distance_m(obj) if obj.role == "ramp" else None)
+        else:
+            f0 = _measure(scene, obj.role, mask, first_rgb)
+        tr = ObjectTracker(f0.shape, f0.mask, np.array([f0.center_xz[0], f0.center_xz[1], -f0.phi0]), cam, n)
+        tr.add_features(gray[0], mask)
+        tr.fit(0)
+        trackers.append(tr)
+        starts.append((f0, how))
+        if obj.role == "ramp":
+            lo, hi = scene.priors.offset_units
+            off = round(f0.s_along_m / scene.unit_m - scene.start_units)
+            offsets[obj.name] = int(min(max(off, lo), hi))
+    for f in range(1, n):
+        preds = [t.predict() for t in trackers]
+        masks: dict[int, np.ndarray] = {}
+
+        def predicted(j):  # computed only when a tracker needs to look around
+            if j not in masks:
+                masks[j] = trackers[j].predicted_mask(preds[j])
+            return masks[j]
+
+        def others_of(k):
+            out = np.zeros((cam.height_px, cam.width_px), bool)
+            for j in range(len(trackers)):
+                if j != k:
+                    out |= dilate(predicted(j), OTHERS_MARGIN_PX)
+            return out
+
+        moving = None
+        # one KLT call per window size for all objects' features (each call builds pyramids)
+        live = [k for k, t in enumerate(trackers) if not t.lost]
+        for win in sorted({trackers[k].win for k in live}):
+            group = [k for k in live if trackers[k].win == win]
+            pts = np.concatenate([trackers[k].pts for k in group])
+            guess = np.concatenate([trackers[k].project(trackers[k].obj, preds[k]) for k in group])
+            new, ok = flow(gray[f - 1], gray[f], pts, guess, win)
+            start = 0
+            for k in group:
+                t = trackers[k]
+                m = len(t.pts)
+                t.pts, t.obj = new[start:start + m][ok[start:start + m]], t.obj[ok[start:start + m]]
+                start += m
+        for k, t in enumerate(trackers):
+            if not t.lost:
+                t.fit(f, preds[k])
+            if t.lost:  # re-acquire it among the moving pixels near where it should be
+                if moving is None:
+                    # pixels that differ both from the scene's end and from its start
+                    moving = full_res(foreground(small[f], bg_end, noise) & foreground(small[f], small[0], noise),
+                                      full_hw)
+                near = dilate(predicted(k), REACQUIRE_PX)
+                blob = largest_component(moving & near & ~others_of(k))
+                if blob is not None:
+                    _relocate(scene, t, blob)
+                    t.add_features(gray[f], blob)
+                    t.fit(f, t.pose)
+            elif t.needs_features():
+                t.add_features(gray[f], erode(t.predicted_mask(), RESEED_ERODE_PX) & ~others_of(k))
+        bar.update()
+    bar.close()
+
+    objects = []
+    for obj, t, (f0, how) in zip(scene.objects, trackers, starts):
+        pos = np.full((n, 3), np.nan)
+        vis = t.visible
+        pos[vis, 0] = t.center[vis, 0]
+        pos[vis, 1] = 0.0
+        pos[vis, 2] = t.center[vis, 1]
+        vel = velocity_from_positions(pos, vis, fps)
+        centre_px = np.full((n, 2), np.nan)
+        centre_px[vis] = cam.project(pos[vis])
+        objects.append(ObjectTrack(obj.name, obj.role, pos, vel, vis.copy(), f0.shape, offsets.get(obj.name),
+                                   how, centre_px, t.features))
+    tracks = Tracks(fps, objects)
+    if debug_video is not None:
+        write_debug_video(debug_video, (yuv_to_rgb(g, c) for g, c in zip(gray, chroma)), tracks, fps)
+    return tracks
+
+
+def write_debug_video(path: str | Path, frames_rgb, tracks: Tracks, fps: float) -> None:
+    """The video with each object's features, centre, trail and role drawn over it (H.264)."""
+    from ...video import write_video
+
+    write_video(path, [draw_tracks(frame, tracks, f, ROLE_COLORS) for f, frame in enumerate(frames_rgb)], fps)
