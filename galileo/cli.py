@@ -43,13 +43,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     values = _parse_set(args.set)
     if values:
         scene = scenario.with_values(scene, values)
-    fps = args.fps or (scene.camera.fps if scene.camera else 30.0)
+    timing = scenario.video_timing(scene)   # (fps, n_frames) of the scene's video, if it says
+    fps = args.fps or (timing[0] if timing else 30.0)
     if args.frames is not None:
         n = args.frames
     elif args.duration_s is not None:
         n = int(round(args.duration_s * fps)) + 1
-    elif scene.camera is not None:
-        n = scene.camera.n_frames
+    elif timing is not None:
+        n = timing[1]
     else:
         n = int(round(2.0 * fps)) + 1
     if n < 1:
@@ -171,14 +172,15 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("simulate", help="simulate a scene and write its trajectory JSON")
     s.add_argument("--scene", help="scene JSON (omit for the quick form below)")
     s.add_argument("--set", action="append", metavar="NAME=VALUE",
-                   help="override m1_kg, k1, m2_kg, k2, offset_units, angle_deg, e1, e2 (repeatable)")
+                   help="override a latent or another value of the scene (repeatable; `galileo scenarios` "
+                        "lists each scenario's latents)")
     s.add_argument("--angle-deg", type=float, help="quick form: ramp angle (default 20)")
     s.add_argument("--friction", type=float, help="quick form: ramp object's friction (default 0.2)")
     s.add_argument("--mass", type=float, help="quick form: ramp object's mass in kg (default 0.5)")
     s.add_argument("--target", choices=["none", "cardboard", "foam"], help="quick form: target (default none)")
-    s.add_argument("--duration-s", type=float, help="simulated time (default: the camera's frame count, else 2 s)")
+    s.add_argument("--duration-s", type=float, help="simulated time (default: the scene's video length, else 2 s)")
     s.add_argument("--frames", type=int, help="number of frames instead of --duration-s")
-    s.add_argument("--fps", type=float, help="output frame rate (default: the camera's, else 30)")
+    s.add_argument("--fps", type=float, help="output frame rate (default: the scene's video's, else 30)")
     s.add_argument("--out", required=True, help="trajectory JSON to write")
     s.set_defaults(func=cmd_simulate)
 
@@ -198,9 +200,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_track)
 
-    i = sub.add_parser("infer", help="infer masses and frictions from a video (MCMC over Bullet)")
+    i = sub.add_parser("infer", help="infer a scene's latents (masses, frictions, ...) from a video "
+                                     "(MCMC over Bullet)")
     i.add_argument("video", help="video file")
-    i.add_argument("--scene", required=True, help="scene JSON whose camera describes the video")
+    i.add_argument("--scene", required=True, help="scene JSON describing the video (for the ramp: its camera)")
     i.add_argument("--tracks", help="tracks JSON from `galileo track` (default: track the video first)")
     i.add_argument("--chains", type=int, default=16)
     i.add_argument("--sweeps", type=int, default=75)

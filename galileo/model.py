@@ -18,12 +18,15 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol, Sequence
+from typing import TYPE_CHECKING, Any, Protocol, Sequence
 
 import numpy as np
 
 from .datatypes import Trajectory, Tracks
 from .latents import Latent, Noise
+
+if TYPE_CHECKING:
+    from .camera import Camera
 
 
 class Likelihood(Protocol):
@@ -62,7 +65,11 @@ class Drawing:
 
 
 class Scenario(ABC):
-    """One physical scenario. Subclasses set `name`, `description` and `noise`."""
+    """One physical scenario. Subclasses set `name`, `description` and `noise`.
+
+    Its scene objects carry a class attribute `scenario` (the scenario's name) and
+    `to_json()` (a scene file, with `"scenario"`, that `scene_from_json` reads back): the
+    runner sends scenes to worker processes and sessions save them that way."""
     name: str = ""
     description: str = ""
     noise: Noise
@@ -140,4 +147,16 @@ class Scenario(ABC):
     @abstractmethod
     def default_scene(self):
         """A standard scene of this scenario (for `galileo scenarios` and the demo)."""
+
+    # -- the video a scene describes ------------------------------------------------------------
+    def camera(self, scene) -> "Camera | None":
+        """The video's camera, if the scene has one (the viewer's frustum and camera view;
+        without one the viewer shows the 3-D scene only). Default: `scene.camera`, if any."""
+        return getattr(scene, "camera", None)
+
+    def video_timing(self, scene) -> tuple[float, int] | None:
+        """(fps, n_frames) of the video the scene describes, if it says (the defaults of
+        `galileo simulate`). Default: the camera's."""
+        cam = self.camera(scene)
+        return None if cam is None else (float(cam.fps), int(cam.n_frames))
 

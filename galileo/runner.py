@@ -61,7 +61,7 @@ class Settings:
     narrow: float | tuple = 0.05
     broad: float | tuple = 0.5
     broad_every: int = 20
-    noise_spec: Noise = field(default=Noise("sigma_mps", "m/s", 0.05), compare=False)
+    noise_spec: Noise | None = field(default=None, compare=False)   # the scenario's (set by `checked`)
 
     @classmethod
     def default(cls, latents: Sequence[Latent], noise: Noise) -> "Settings":
@@ -73,6 +73,8 @@ class Settings:
         latents (any missing taken from the latents' own), each by `latents.check_bounds`;
         the noise (named by `noise`, default this one's spec) and widths likewise."""
         spec = noise or self.noise_spec
+        if spec is None:
+            raise ValueError("settings need the scenario's noise to be checked")
         specs = by_name(latents)
         unknown = set(self.bounds) - set(specs)
         if unknown:
@@ -98,8 +100,9 @@ class Settings:
     def to_json(self) -> dict:
         def w(x):
             return list(x) if isinstance(x, tuple) else float(x)
+        name, unit = (self.noise_spec.name, self.noise_spec.unit) if self.noise_spec else ("noise", "?")
         return {"bounds": {k: [float(v[0]), float(v[1])] for k, v in self.bounds.items()},
-                self.noise_spec.name: float(self.noise), "sigma_is": f"standard deviation ({self.noise_spec.unit})",
+                name: float(self.noise), "sigma_is": f"standard deviation ({unit})",
                 "narrow": w(self.narrow), "broad": w(self.broad), "broad_every": int(self.broad_every)}
 
     @classmethod

@@ -9,7 +9,7 @@ Entity layout (timelines in brackets):
     video/tracks/<object>/path     LineStrips2D: the centre's whole path (static)
     observed/<object>          LineStrips3D (static) + Points3D [frame]: tracked positions, metres
     chains/<c>/loglik          Scalars [sweep]
-    chains/<c>/<latent>        Scalars [sweep]   (latents: m1_kg, k1, m2_kg, k2)
+    chains/<c>/<latent>        Scalars [sweep]   (the scenario's latents, by name)
     posterior/<latent>         BarChart histogram (static, replaced on each call)
     events                     TextLog [sweep]   (prior edits etc.)
     sim/<object>               LineStrips3D (static) + Points3D [frame]: a simulated trajectory
@@ -47,8 +47,7 @@ VIDEO_CODECS = {"h264", "hevc", "h265", "av1", "vp9"}
 FALLBACK_MAX_FRAMES = 120
 FALLBACK_JPEG_QUALITY = 80
 
-ROLE_COLORS = {"ramp": (255, 80, 40), "target": (40, 160, 255)}
-OTHER_COLOR = (255, 220, 0)
+TRACK_COLORS = [(255, 80, 40), (40, 160, 255), (255, 220, 0)]   # tracked objects, in the tracks' order
 SIM_COLORS = [(230, 60, 60), (60, 120, 230), (60, 180, 90), (200, 120, 220)]
 OBSERVED_COLOR = (150, 150, 150)
 
@@ -337,8 +336,8 @@ class RerunLogger:
             return
         frames = rr.TimeColumn("frame", sequence=np.arange(n))
         self._at()
-        for o in tracks.objects:
-            color = ROLE_COLORS.get(o.role, OTHER_COLOR)
+        for i, o in enumerate(tracks.objects):
+            color = TRACK_COLORS[i % len(TRACK_COLORS)]
             base = f"video/tracks/{_part(o.name)}"
             centre = None
             if o.center_px is not None:

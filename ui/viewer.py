@@ -122,11 +122,13 @@ class Viewer:
         for o in self.tracks.objects:
             s.add_line_segments(f"/tracks/observed/{o.name}", _segments(o.position_m), (255, 140, 0),
                                 thickness=3, thickness_units="screen")
-        cam = sc.camera
-        wxyz, pos, fov, aspect = camera_pose(cam)
-        self.frustum = s.add_camera_frustum("/video_camera", fov=fov, aspect=aspect, scale=0.15,
-                                            image=self.video[0], format="jpeg", jpeg_quality=80,
-                                            wxyz=wxyz, position=pos)
+        self.camera = self.scenario.camera(sc)   # None: no video camera, so no frustum and no camera view
+        self.frustum = None
+        if self.camera is not None:
+            wxyz, pos, fov, aspect = camera_pose(self.camera)
+            self.frustum = s.add_camera_frustum("/video_camera", fov=fov, aspect=aspect, scale=0.15,
+                                                image=self.video[0], format="jpeg", jpeg_quality=80,
+                                                wxyz=wxyz, position=pos)
         self.sim_lines = []
 
     def _update_sim_lines(self) -> None:
@@ -302,12 +304,16 @@ class Viewer:
             self.frame = int(np.clip(frame, 0, self.n_frames - 1))
             self._pose_objects(self.frame)
             img = self.video[self.frame]
-            self.frustum.image = img
+            if self.frustum is not None:
+                self.frustum.image = img
             if self.camera_view:
                 self.server.scene.set_background_image(img, format="jpeg", jpeg_quality=85)
 
     def snap_camera(self, client=None) -> None:
-        wxyz, pos, fov, _ = camera_pose(self.scene.camera)
+        if self.camera is None:
+            self._notify("this scene has no video camera")
+            return
+        wxyz, pos, fov, _ = camera_pose(self.camera)
         clients = [client] if client is not None else list(self.server.get_clients().values())
         fwd = np.array(trimesh.transformations.quaternion_matrix(wxyz))[:3, 2]
         for c in clients:
@@ -323,7 +329,8 @@ class Viewer:
     def free_view(self) -> None:
         self.camera_view = False
         self.server.scene.set_background_image(None)
-        self.frustum.visible = True
+        if self.frustum is not None:
+            self.frustum.visible = True
 
     # -- live updates --------------------------------------------------------------------------
     def _on_controller(self, kind: str, payload: dict) -> None:

@@ -40,7 +40,7 @@ class RampScenario(Scenario):
         return scene.latent_specs()
 
     def track(self, video_path, scene, *, progress: bool = True, debug_video=None):
-        from ...tracking import track  # TODO(me): .tracking once split
+        from .tracking import track
 
         return track(video_path, scene, progress=progress, debug_video=debug_video)
 

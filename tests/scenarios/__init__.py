@@ -1,0 +1,1 @@
+"""Scenarios used only by the tests (registered by the tests themselves, never built in)."""
