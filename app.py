@@ -73,7 +73,7 @@ def run(args) -> int:
 
     from galileo.errors import GalileoError
     from galileo import registry
-    from galileo.runner import burn_in
+    from galileo.results import burn_in
     from galileo.video import read_video
     from ui.controller import Controller
     from ui.rerun_log import RRD_NAME, RerunLogger

@@ -21,9 +21,14 @@ import numpy as np
 from . import registry
 from .errors import GalileoError
 from .jsonio import atomic_write_bytes, write_json
-from .runner import RunConfig, Settings, burn_in
 
 MIN_KEPT_DRAWS = 4
+BURN_IN_FRACTION = 0.5  # posterior summaries and R-hat/ESS use the second half of each chain
+
+
+def burn_in(n_sweeps: int) -> int:
+    """Sweeps dropped from the start of a chain of `n_sweeps` before summarising it."""
+    return int(n_sweeps * BURN_IN_FRACTION)
 
 
 def rhat_ess(kept: Sequence[np.ndarray], names: Sequence[str]) -> tuple[dict, dict]:
@@ -61,8 +66,8 @@ class InferenceResult:
     logliks: np.ndarray          # (chains, sweeps)
     starts: np.ndarray           # (chains, latents)
     proposals: dict              # per-proposal arrays, each (chains, sweeps * latents, ...)
-    config: RunConfig
-    settings: Settings
+    config: object               # galileo.runner.RunConfig
+    settings: object             # galileo.runner.Settings (what was in force)
     timing_s: dict
     steps: int
     scene: object                # the scene inferred on (what tracking fixed put in)

@@ -34,14 +34,7 @@ from .datatypes import Tracks
 from .errors import GalileoError
 from .latents import Latent, Noise, by_name, check_bounds, check_noise, check_widths, default_widths
 from .mcmc import MHState, Proposal, chain_rng, sweep
-
-BURN_IN_FRACTION = 0.5  # posterior summaries and R-hat/ESS use the second half of each chain
-
-
-def burn_in(n_sweeps: int) -> int:
-    """Sweeps dropped from the start of a chain of `n_sweeps` before summarising it."""
-    return int(n_sweeps * BURN_IN_FRACTION)
-
+from .results import InferenceResult
 
 def initial_positions(bounds: np.ndarray, n_chains: int, seed: int) -> np.ndarray:
     """Chain starts drawn uniformly from the prior (reproducible from the seed)."""
@@ -319,8 +312,6 @@ def local_executor(workers: int | None, n_tasks: int | None = None):
 def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=None, progress: bool = True):
     """Run `config.chains` chains of `config.sweeps` sweeps on a video's tracks; an
     `InferenceResult` (MAP, posterior, diagnostics, every proposal)."""
-    from .results import InferenceResult
-
     cfg = config or RunConfig()
     cfg.check()
     t0 = time.perf_counter()

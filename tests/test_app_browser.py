@@ -23,6 +23,16 @@ def viewer(demo_dir, tmp_path_factory):
     ctrl.close()
 
 
+def wait_until(condition, timeout_s: float) -> bool:
+    """Poll `condition` (public state the viewer's threads update) until true or timeout."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
 def test_browser_scrubs_samples_and_the_scene_changes(viewer):
     from playwright.sync_api import sync_playwright
 
@@ -30,6 +40,18 @@ def test_browser_scrubs_samples_and_the_scene_changes(viewer):
     chain = int(viewer.chain_dropdown.value)
     viewer.sample_slider.value = 0
     viewer.select_sample(chain, 0)
+    # where each sample of the chain puts the first object in this frame: its scored motion,
+    # simulated before the browser drives the viewer's own simulations
+    samples = viewer.ctrl.samples(chain)
+    model = viewer.model
+    ends = [model.motion(s).position_m[0, viewer.frame] for s in samples]
+    before_n, before_sel = viewer.resimulations, viewer.selection.index
+    assert before_sel == 0 and np.array_equal(viewer.object_handles[0].position, ends[0])
+
+    def shows_a_later_sample() -> bool:
+        sel = viewer.selection.index
+        return sel > before_sel and np.array_equal(viewer.object_handles[0].position, ends[sel])
+
     with sync_playwright() as p:
         browser = p.chromium.launch(
             executable_path=CHROMIUM, headless=True,
@@ -38,27 +60,17 @@ def test_browser_scrubs_samples_and_the_scene_changes(viewer):
         try:
             page = browser.new_page(viewport={"width": 1024, "height": 768})
             page.goto(viewer.url)
-            deadline = time.time() + 60
-            while not viewer.server.get_clients() and time.time() < deadline:  # mounted and connected
-                time.sleep(0.1)
-            assert viewer.server.get_clients(), "the viser client never connected"
+            assert wait_until(lambda: viewer.server.get_clients(), 60), "the viser client never connected"
             sliders = page.get_by_role("slider")
             sliders.first.wait_for(timeout=30000)
             assert sliders.count() == 2  # Frame, Sample
-            before_n, before_pos = viewer.resimulations, np.array(viewer.object_handles[0].position)
-            before_sel = viewer.selection.index
             sliders.nth(1).focus()
             for _ in range(3):
                 page.keyboard.press("ArrowRight")
-            deadline = time.time() + 20
-            while viewer.resimulations == before_n and time.time() < deadline:
-                time.sleep(0.05)
-            time.sleep(0.5)
-            assert viewer.resimulations > before_n, "moving the slider did not re-simulate"
-            assert viewer.selection.index > before_sel
-            after = np.array(viewer.object_handles[0].position)
-            samples = viewer.ctrl.samples(chain)
-            assert not np.array_equal(samples[before_sel], samples[viewer.selection.index])
-            assert np.abs(after - before_pos).max() > 1e-6, "the scene did not change"
+            assert wait_until(shows_a_later_sample, 20), "moving the slider did not show a later sample"
+            assert viewer.resimulations > before_n
+            sel = viewer.selection.index
+            assert not np.array_equal(samples[before_sel], samples[sel])
+            assert np.abs(ends[sel] - ends[before_sel]).max() > 1e-6, "the scene did not change"
         finally:
             browser.close()

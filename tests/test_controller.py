@@ -5,7 +5,6 @@ import json
 import re
 import shutil
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -14,8 +13,6 @@ from galileo.errors import GalileoError
 from galileo.runner import RunConfig as InferenceConfig
 from galileo.runner import infer
 from galileo.scenarios.ramp.likelihood import VelocityLikelihood
-from galileo.scenarios.ramp.scene import Scene
-from galileo.tracking import track
 from ui import session as sess
 from galileo.runner import Settings
 from ui.controller import Controller
@@ -24,10 +21,10 @@ NAMES = ("m1_kg", "k1", "m2_kg", "k2")
 
 
 @pytest.fixture(scope="module")
-def demo(demo_dir):
-    """(scene, tracks) of the demo video, tracked once for the module."""
-    scene = Scene.load(demo_dir / "scene.json")
-    return scene, track(demo_dir / "video.mp4", scene, progress=False)
+def demo(demo_frozen):
+    """(scene, tracks) of the demo video: the frozen inputs (tests/data), since the chains
+    are compared with the batch runner and the likelihood bit for bit."""
+    return demo_frozen[:2]
 
 
 @pytest.fixture
@@ -233,21 +230,38 @@ def test_set_bounds_pulls_chains_inside_and_set_widths(make):
     assert [e["kind"] for e in ctl.events] == ["init", "bounds", "widths"]
 
 
+class GatedPool:
+    """An executor (`map`) that runs the tasks in this process once the test opens the gate:
+    while it waits, the controller's round is in flight, for certain."""
+
+    def __init__(self):
+        self.entered, self.gate = threading.Event(), threading.Event()
+
+    def map(self, fn, tasks):
+        self.entered.set()
+        if not self.gate.wait(60):
+            raise RuntimeError("the test never opened the gate")
+        return [fn(t) for t in tasks]
+
+
 def test_steering_during_a_sweep_applies_after_it(demo, make):
     """A change made while a round is in flight does not wait for it, leaves it alone (it
     finishes with the old settings and its result is kept) and applies right after it."""
-    ctl = make(chains=3, seed=0, workers=1)
+    pool = GatedPool()
+    ctl = make(chains=3, seed=0, executor=pool)
     runner = threading.Thread(target=ctl.run_sweeps, args=(1,))
     runner.start()
-    deadline = time.monotonic() + 10
-    while not ctl._in_flight and runner.is_alive() and time.monotonic() < deadline:
-        pass
-    assert ctl._in_flight, "could not catch the round in flight"
-    hand = {"m1_kg": 0.3, "k1": 0.2, "m2_kg": 0.6, "k2": 0.4}
-    ctl.set_sigma(0.1)
-    ctl.set_chain(0, hand)
-    assert ctl._in_flight and len(ctl.samples(0)) == 0   # queued, not waited for
-    runner.join()
+    try:
+        assert pool.entered.wait(30), "the round never reached the executor"
+        hand = {"m1_kg": 0.3, "k1": 0.2, "m2_kg": 0.6, "k2": 0.4}
+        ctl.set_sigma(0.1)           # both return while the round waits at the gate:
+        ctl.set_chain(0, hand)       # queued, not waited for
+        assert runner.is_alive() and len(ctl.samples(0)) == 0
+        assert [e["kind"] for e in ctl.events] == ["init"] and ctl.settings.noise == 0.05
+    finally:
+        pool.gate.set()
+        runner.join(60)
+    assert not runner.is_alive()
     assert [e["kind"] for e in ctl.events] == ["init", "sigma", "set_chain"]
     assert all(e["sweep"] == 1 for e in ctl.events[1:])
     assert ll_ok(demo, ctl, 0, 0.05) and ctl.position(0) == hand   # the sweep's result did not undo it
@@ -405,19 +419,29 @@ def test_start_stop_in_the_background(demo, make, tmp_path):
     heard = []
     main = threading.get_ident()
     ctl.add_listener(lambda kind, payload: heard.append((kind, payload, threading.get_ident())))
+    rounds_seen = threading.Condition()
+    done = [0]
+
+    def count(kind, payload):
+        if kind == "sweeps":
+            with rounds_seen:
+                done[0] = payload["round"]
+                rounds_seen.notify_all()
+    ctl.add_listener(count)
+
+    def wait_rounds(k):
+        with rounds_seen:
+            assert rounds_seen.wait_for(lambda: done[0] >= k, timeout=60), f"round {k} never came"
+
     ctl.start()
     assert ctl.running
-    deadline = time.monotonic() + 30
-    while len(ctl.samples(0)) < 3 and time.monotonic() < deadline:
-        time.sleep(0.02)
-    assert len(ctl.samples(0)) >= 3
+    wait_rounds(3)
     ctl.set_sigma(0.08)          # while rounds run: applies between two of them
-    n = len(ctl.samples(0))
-    while len(ctl.samples(0)) < n + 2 and time.monotonic() < deadline:
-        time.sleep(0.02)
-    t0 = time.monotonic()
+    wait_rounds(ctl.status()["rounds"] + 2)
+    before = ctl.status()["rounds"]
     ctl.stop()
-    assert time.monotonic() - t0 < 3 and not ctl.running
+    # stop lets the round in flight finish and starts no other
+    assert not ctl.running and ctl.status()["rounds"] <= before + 1
     assert ctl.status()["error"] is None
 
     ev = next(e for e in ctl.events if e["kind"] == "sigma")

@@ -53,6 +53,31 @@ def test_demo_is_deterministic_for_a_seed(demo_dir, tmp_path):
     assert np.array_equal(a, b)
 
 
+def test_frozen_demo_inputs_are_the_demo(demo_dir, demo_frozen):
+    """tests/data holds the demo's scene and truth as the preset renders them today, and
+    tracks of its video: the frozen inputs of the exactness tests stay those of the demo."""
+    from galileo.registry import load_scene
+    from conftest import DATA
+
+    frozen, rendered = load_scene(DATA / "scene.json"), load_scene(demo_dir / "scene.json")
+    assert frozen == rendered and frozen.to_json() == rendered.to_json()
+    truth = json.loads((demo_dir / "truth.json").read_text())
+    assert json.loads((DATA / "truth.json").read_text())["latents"] == truth["latents"]
+    scene, tracks, _ = demo_frozen
+    traj = Trajectory.from_json(truth["trajectory"])
+    assert tracks.fps == scene.camera.fps and tracks.n_frames == scene.camera.n_frames == traj.n_frames
+    assert [o.role for o in tracks.objects] == [o.role for o in scene.objects]
+    assert tracks.by_role("ramp").offset_units == truth["latents"]["offset_units"]
+    for i, o in enumerate(tracks.objects):
+        seen = o.visible
+        assert seen.sum() > 0.8 * tracks.n_frames
+        # positions within one offset unit of the truth (the offset grid tracking snaps to)
+        assert np.abs(o.position_m[seen] - traj.position_m[i, seen]).max() < scene.unit_m
+        # velocities (x, z) within the likelihood's noise: rms error below sigma = 0.05 m/s
+        d = o.velocity_mps[seen][:, [0, 2]] - traj.velocity_mps[i, seen][:, [0, 2]]
+        assert math.sqrt((d ** 2).mean()) < 0.05
+
+
 def test_catalogue_and_presets_follow_the_paper():
     objs = catalogue(0)
     assert len(MATERIALS) == 15

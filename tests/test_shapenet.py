@@ -3,6 +3,7 @@ training), and a negative control showing it uses appearance, not just the silho
 import numpy as np
 import pytest
 
+from galileo.scenarios.ramp import shapenet_train
 from galileo.vision import shapenet
 from galileo.vision.shapenet import LABELS
 
@@ -11,7 +12,7 @@ pytestmark = pytest.mark.skipif(not shapenet.available(), reason="no shapenet we
 
 @pytest.fixture(scope="module")
 def fresh():
-    return shapenet.make_examples(36, seed=98765, workers=1, progress=False)
+    return shapenet_train.make_examples(36, seed=98765, workers=1, progress=False)
 
 
 def test_weights_load_without_pickle():

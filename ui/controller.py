@@ -93,10 +93,6 @@ class _Buf:
         return self.n
 
 
-PROPOSAL_FIELDS = {"site": (np.int8, False), "proposal": (float, True), "proposal_loglik": (float, False),
-                    "accepted": (bool, False), "early_stop": (bool, False), "width": (float, False)}
-
-
 class _Chain:
     def __init__(self, cid: int, start: np.ndarray, rng_state: dict, dim: int):
         self.id = cid

@@ -30,7 +30,7 @@ import trimesh
 import viser
 from viser import uplot
 
-from galileo.runner import burn_in
+from galileo.results import burn_in
 from galileo.datatypes import Trajectory
 from galileo import registry
 from galileo.camera import Camera

@@ -28,9 +28,16 @@ once per likelihood. Phase B, from that physics step on: the world restarts from
 objects' poses and velocities (`Simulator.resume`: contacts start cold) with the
 proposal's values. Masses and the target's friction change nothing before the objects
 meet (sliding is mass-independent; the target rests), so the world at the switch depends
-on k1 alone. Against one uninterrupted Bullet run, only the cold contacts differ (a few
-millimetres in a collision, the size of Bullet's own solver tolerance);
-tests/test_inference.py checks both.
+on k1 alone. Against one uninterrupted Bullet run with the proposal's own values, the
+differences are: rounding before contact (masses change the solver's rounding by ~1e-15),
+which a collision amplifies to about what a one-ulp nudge of the inputs does; the cold
+contacts (a few millimetres in a collision, the size of Bullet's own solver tolerance);
+when the bounding boxes overlap a few steps before the switch, Bullet solves the two
+bodies as one island, which changes the resting target's spin by ~1e-3 rad/s; and a target
+with friction below ~0.27 slips ~1e-5 m while settling, so its resting motion depends
+slightly on its friction. tests/test_inference.py checks the motion bit for bit against
+Bullet runs with phase A's own values, and within the one-ulp bound against the
+proposal's.
 
 Exact speed-ups (`speedups=True`; each gives the same accept/reject decisions as the
 plain path, `speedups=False`, which simulates every frame of every proposal):

@@ -12,9 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import GalileoError
-from ...results import load_samples
-from ...runner import burn_in
 from ...jsonio import read_json
+from ...results import burn_in, load_samples
 from .physics import Simulator
 from .scene import Scene, scene_from_json
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from ...camera import Camera, camera_from_json, look_at_camera
 from ...errors import SceneError
-from ...fields import field_value, matrix, number, pair
+from ...fields import field_value, number, pair
 from ...jsonio import read_json, write_json
 from ...latents import Latent, check_bounds
 from ...shapes import SHAPE_TYPES, Shape, shape_class

@@ -1,0 +1,123 @@
+"""The scenario registry, latents checked in one place, and the one chain runner with an
+injected executor (on the ramp scenario, with the committed demo scene and a tiny run)."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from galileo import registry
+from galileo.errors import GalileoError, SceneError
+from galileo.latents import Latent, check_bounds
+from galileo.runner import RunConfig, Settings, infer
+from galileo.scenarios.ramp.scene import default_scene
+
+
+def test_scene_files_name_their_scenario_and_old_files_are_ramp():
+    d = default_scene().to_json()
+    assert d["scenario"] == "ramp"
+    assert registry.scene_from_json(d).scenario == "ramp"
+    del d["scenario"]   # a file written before scenarios had names
+    assert registry.scene_from_json(d) == default_scene()
+    d["scenario"] = "no-such"
+    with pytest.raises(SceneError, match="unknown scenario 'no-such'"):
+        registry.scene_from_json(d)
+
+
+MASS = Latent("m_kg", "kg", (0.1, 1.0), limits=(0.0, math.inf), limits_open_low=True)
+FRICTION = Latent("k", "1", (0.0, 1.0), limits=(0.0, math.inf))
+
+
+@pytest.mark.parametrize("latent, lo, hi, needle", [
+    (FRICTION, 0.4, 0.4, "must be below"),          # the bound that once loaded and then broke its session
+    (FRICTION, 0.5, 0.4, "must be below"),
+    (FRICTION, -0.1, 0.4, ">= 0"),
+    (MASS, 0.0, 1.0, "> 0"),
+    (MASS, float("nan"), 1.0, "finite"),
+    (MASS, "a", 1.0, "expected a number"),
+    (MASS, True, 1.0, "expected a number"),
+])
+def test_check_bounds_refuses(latent, lo, hi, needle):
+    with pytest.raises(ValueError, match=needle):
+        check_bounds(latent, lo, hi)
+
+
+def test_check_bounds_accepts_and_returns_floats():
+    assert check_bounds(MASS, 1, 2) == (1.0, 2.0) and check_bounds(FRICTION, 0, 0.5) == (0.0, 0.5)
+
+
+def test_one_rule_for_scene_files_sessions_and_live_edits(tmp_path):
+    """A prior the scene loader accepts is one the app's settings accept, and vice versa: the
+    degenerate k2 [0.4, 0.4] is refused at load time, with the field named."""
+    d = default_scene(target="cardboard").to_json()
+    d["priors"]["k2"] = [0.4, 0.4]
+    with pytest.raises(SceneError, match=r"priors\.k2: the low bound \(0.4\) must be below"):
+        registry.scene_from_json(d)
+    d["priors"]["k2"] = [0.4, 0.41]
+    scene = registry.scene_from_json(d)
+    scenario = registry.of(scene)
+    latents = scenario.latents(scene)
+    s = Settings.default(latents, scenario.noise).checked(latents)
+    assert s.bounds["k2"] == (0.4, 0.41)
+    back = Settings.from_json(json.loads(json.dumps(s.to_json())), latents, scenario.noise)
+    assert back == s
+
+
+def test_settings_refuse_unknown_latents_and_bad_noise():
+    scenario = registry.get("ramp")
+    latents = scenario.latents(default_scene())
+    with pytest.raises(ValueError, match="unknown latents"):
+        Settings({"m1_kg": (0.1, 1.0), "q": (0, 1)}).checked(latents, scenario.noise)
+    with pytest.raises(ValueError, match="sigma_mps must be > 0"):
+        Settings({}, noise=0.0).checked(latents, scenario.noise)
+    with pytest.raises(ValueError, match="broad_every"):
+        Settings({}, broad_every=1.5).checked(latents, scenario.noise)
+
+
+def test_scenarios_command_lists_the_ramp(capsys):
+    from galileo.cli import main
+
+    assert main(["scenarios", "--json"]) == 0
+    listed = {d["name"]: d for d in json.loads(capsys.readouterr().out)}
+    ramp = listed["ramp"]
+    assert ramp["noise"] == {"name": "sigma_mps", "unit": "m/s", "default": 0.05}
+    lat = {x["name"]: x for x in ramp["latents"]}
+    assert lat["m1_kg"]["unit"] == "kg" and lat["m1_kg"]["bounds"] == [0.001, 1.0]
+    assert lat["k1"]["unit"] == "1" and lat["k1"]["narrow"] == 0.05 and lat["k1"]["broad"] == 0.5
+
+
+class CountingExecutor:
+    """The smallest executor the runner accepts: anything with `map`."""
+
+    def __init__(self):
+        self.tasks = 0
+
+    def map(self, fn, iterable):
+        for task in iterable:
+            self.tasks += 1
+            yield fn(task)
+
+
+@pytest.fixture(scope="module")
+def frozen(demo_frozen):
+    scene, tracks = demo_frozen[:2]
+    return scene, tracks
+
+
+def test_an_injected_executor_runs_the_same_chains(frozen):
+    scene, tracks = frozen
+    cfg = RunConfig(chains=2, sweeps=3, seed=4, workers=1)
+    ex = CountingExecutor()
+    mine = infer(scene, tracks, cfg, executor=ex, progress=False)
+    default = infer(scene, tracks, cfg, progress=False)
+    assert ex.tasks == 2   # one task a chain
+    assert np.array_equal(mine.samples, default.samples) and np.array_equal(mine.logliks, default.logliks)
+
+
+def test_run_config_is_checked_before_any_work(frozen):
+    scene, tracks = frozen
+    for bad in (dict(chains=0), dict(sweeps=-1), dict(seed=-1), dict(workers=0), dict(chains=1.5)):
+        with pytest.raises(GalileoError):
+            infer(scene, tracks, RunConfig(**bad), progress=False)
+    with pytest.raises(GalileoError, match="m1_kg"):
+        infer(scene, tracks, RunConfig(chains=1, sweeps=1, bounds={"m1_kg": (0.5, 0.5)}), progress=False)
