@@ -22,7 +22,8 @@ class Latent:
     `limits` is where any prior bounds must lie (a mass above 0, a friction at or above
     0); `limits_open_low` says whether the low limit itself is excluded. `narrow` and
     `broad` are the single-site proposal half-widths (U(-w, w)) of the usual and of the
-    periodic broad sweep."""
+    periodic broad sweep; an `integer` latent instead moves by -w or +w with equal odds (w = 1:
+    one step up or down)."""
     name: str
     unit: str                       # "kg", "1" (dimensionless), ...
     bounds: tuple[float, float]     # default prior bounds
@@ -31,10 +32,12 @@ class Latent:
     limits_open_low: bool = False
     narrow: float = 0.05
     broad: float = 0.5
+    integer: bool = False           # takes integer values; proposals move it by +-1 (equal odds)
 
     def to_json(self) -> dict:
         return {"name": self.name, "unit": self.unit, "bounds": list(self.bounds), "doc": self.doc,
-                "limits": [_json_num(x) for x in self.limits], "narrow": self.narrow, "broad": self.broad}
+                "limits": [_json_num(x) for x in self.limits], "narrow": self.narrow, "broad": self.broad,
+                "integer": self.integer}
 
 
 @dataclass(frozen=True)

@@ -37,10 +37,13 @@ class MHInfo(NamedTuple):
 
 
 class Proposal(NamedTuple):
-    """Proposal widths: U(-narrow, narrow), and U(-broad, broad) every broad_every-th sweep."""
+    """Proposal widths: U(-narrow, narrow), and U(-broad, broad) every broad_every-th sweep;
+    a latent in `integer_sites` moves by -w or +w with equal odds instead (symmetric, so no
+    Hastings factor either way)."""
     narrow: float | Sequence[float] = 0.05
     broad: float | Sequence[float] = 0.5
     broad_every: int = 20
+    integer_sites: tuple[int, ...] = ()
 
     def width(self, sweep_number: int, site: int) -> float:
         """Half-width for sweep `sweep_number` (1-based) and latent `site`."""
@@ -59,10 +62,13 @@ def init(position: Sequence[float], logdensity: LogDensity) -> MHState:
 
 
 def step_site(rng: np.random.Generator, state: MHState, site: int, width: float, logdensity: LogDensity,
-              bounds: np.ndarray, early_rejection: bool = True) -> tuple[MHState, MHInfo]:
-    """One single-site MH update of latent `site`."""
+              bounds: np.ndarray, early_rejection: bool = True, integer: bool = False) -> tuple[MHState, MHInfo]:
+    """One single-site MH update of latent `site` (`integer`: a step of -width or +width)."""
     proposal = state.position.copy()
-    proposal[site] += rng.uniform(-width, width)
+    if integer:
+        proposal[site] += width if rng.uniform() < 0.5 else -width
+    else:
+        proposal[site] += rng.uniform(-width, width)
     log_u = math.log(rng.uniform())  # drawn before the evaluation (and always: same stream either way)
     lo, hi = bounds[site]
     if not lo <= proposal[site] <= hi:
@@ -83,7 +89,7 @@ def sweep(rng: np.random.Generator, state: MHState, logdensity: LogDensity, boun
     infos = []
     for site in (range(len(state.position)) if sites is None else sites):
         state, info = step_site(rng, state, site, proposal.width(number, site), logdensity, bounds,
-                                early_rejection)
+                                early_rejection, site in proposal.integer_sites)
         infos.append(info)
     return state._replace(sweep=number), infos
 

@@ -92,6 +92,19 @@ class Scenario(ABC):
     def latents(self, scene) -> tuple[Latent, ...]:
         """The latents inferred in this scene, with the scene's prior bounds."""
 
+    def initial_positions(self, prepared_scene, latents: Sequence[Latent], bounds: np.ndarray, n_chains: int,
+                          seed: int) -> np.ndarray:
+        """Where chains 0..n_chains-1 start (n_chains, D): by default drawn from the prior
+        (`galileo.runner.initial_positions`, integer latents rounded); chain c's start must
+        not depend on n_chains, so that added chains start like a bigger run's."""
+        from .runner import initial_positions
+
+        starts = initial_positions(bounds, n_chains, seed)
+        for j, lat in enumerate(latents):
+            if lat.integer:
+                starts[:, j] = np.clip(np.round(starts[:, j]), bounds[j, 0], bounds[j, 1])
+        return starts
+
     def with_values(self, scene, values: dict[str, float]):
         """A copy of the scene with latents (and scenario knobs) set; SceneError on an unknown name."""
         return scene.with_values(values)

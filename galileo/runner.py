@@ -54,7 +54,8 @@ class Settings:
     narrow: float | tuple = 0.05
     broad: float | tuple = 0.5
     broad_every: int = 20
-    noise_spec: Noise | None = field(default=None, compare=False)   # the scenario's (set by `checked`)
+    noise_spec: Noise | None = field(default=None, compare=False)
+    integer_sites: tuple[int, ...] = ()   # which latents take integer values (set by `checked`)
 
     @classmethod
     def default(cls, latents: Sequence[Latent], noise: Noise) -> "Settings":
@@ -78,17 +79,18 @@ class Settings:
             if isinstance(w, tuple) and len(w) != len(specs):
                 raise ValueError(f"{what}: {len(w)} widths for {len(specs)} latents")
         value = spec.default if self.noise is None else check_noise(spec, self.noise)
-        return Settings(bounds, value, narrow, broad, every, spec)
+        integer = tuple(i for i, lat in enumerate(latents) if lat.integer)
+        return Settings(bounds, value, narrow, broad, every, spec, integer)
 
     def copy(self) -> "Settings":
         return Settings({k: (float(v[0]), float(v[1])) for k, v in self.bounds.items()}, self.noise,
-                        self.narrow, self.broad, int(self.broad_every), self.noise_spec)
+                        self.narrow, self.broad, int(self.broad_every), self.noise_spec, self.integer_sites)
 
     def bounds_array(self, names: Sequence[str]) -> np.ndarray:
         return np.array([self.bounds[n] for n in names], float)
 
     def proposal(self) -> Proposal:
-        return Proposal(self.narrow, self.broad, int(self.broad_every))
+        return Proposal(self.narrow, self.broad, int(self.broad_every), self.integer_sites)
 
     def to_json(self) -> dict:
         def w(x):
@@ -323,7 +325,7 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
         settings = cfg.settings(latents, scenario.noise)
     except ValueError as e:
         raise GalileoError(str(e)) from None
-    starts = initial_positions(settings.bounds_array(names), cfg.chains, cfg.seed)
+    starts = scenario.initial_positions(prepared, latents, settings.bounds_array(names), cfg.chains, cfg.seed)
     problem = Problem.of(scene, tracks)
     tasks = [first_task(problem, c, starts[c], cfg.seed, cfg.sweeps, settings, names, cfg.speedups)
              for c in range(cfg.chains)]

@@ -53,7 +53,7 @@ from galileo.errors import GalileoError
 from galileo.latents import as_number, by_name, check_bounds, check_noise, check_widths
 from galileo.mcmc import chain_rng
 from galileo.results import kept_draws, rhat_ess
-from galileo.runner import PROPOSAL_FIELDS, ChainTask, Problem, Settings, initial_positions, run_task
+from galileo.runner import PROPOSAL_FIELDS, ChainTask, Problem, Settings, run_task
 
 from . import session as sess
 
@@ -490,7 +490,8 @@ class Controller:
         if not ids:
             return
         bounds = self._bounds_array()
-        starts = initial_positions(bounds, max(ids) + 1, self.seed)
+        starts = self.scenario.initial_positions(self.likelihood_scene, self.latents, bounds, max(ids) + 1,
+                                                 self.seed)
         for c in ids:
             self._chains[c] = _Chain(c, starts[c], chain_rng(self.seed, c).bit_generator.state, len(self.names))
         self._next_id = max(self._next_id, max(ids) + 1)

@@ -1,0 +1,322 @@
+"""Physics of the splash: an object let go above a tank of water, in Bullet (pybullet DIRECT).
+
+Bullet has no fluids, so water acts through forces applied every physics step (Bullet
+clears external forces after each step):
+
+* Buoyancy: rho_water g V_sub upwards at the centre of the submerged volume (Archimedes).
+  V_sub and its centre come from the object's convex mesh cut by the plane of the water
+  (exactly: by the divergence theorem with the apex on the water plane, the cap of the cut
+  contributes nothing, so only the clipped surface triangles are summed). The force acts at
+  the centre of mass and the lever arm of the centre of buoyancy is applied as a torque, so
+  a floating box rights itself. The mesh volume is scaled to the object's nominal volume.
+* Drag: quadratic, F = -1/2 rho_water D A_ref |v| v, with D = drag_water below the surface
+  and D = drag_air = 1e-3 drag_water above it (blended by the submerged fraction while the
+  object crosses the surface); A_ref is the object's area projected on the plane normal to
+  its velocity, from its shape and pose (closed forms: a box shows sum_i |u_i| A_i, a
+  cylinder |u_axis| pi r^2 + sqrt(1 - u_axis^2) D L). Why quadratic: objects of a few
+  centimetres at 0.1-2 m/s in water have Reynolds numbers of 10^3-10^5, where drag grows
+  with the square of the speed and D is the usual drag coefficient (about 1 for a blunt
+  body; the prior U(0.001, 2) spans it). The seed ties the air's coefficient to the water's
+  by their density ratio, so D_a multiplies rho_water too.
+* Rotational drag: -1/8 rho_water D A_mean r^3 |w| w (each surface patch at lever arm ~r/2
+  moving at w r/2; r is half the largest dimension, A_mean the mean projected area), so a
+  tumbling object settles.
+Bullet's own damping is off (linear and angular 0) so nothing counts drag twice; sleeping
+is off. The tank (floor and four glass walls) is static, friction 0.5, restitution 0.
+
+The object's body is made anew for every run (its dimensions are a latent), in a world that
+is built once per tank; a run from the same values reproduces itself bit for bit.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ...datatypes import Trajectory
+from ...errors import GalileoError
+from ...shapes import Box
+from ...sim.bullet import cached_world, client, collision_shape, pb, visual_shape
+from .scene import CM2, SplashScene, body_shape, dimensions
+
+AIR_DRAG_RATIO = 1e-3        # D_a = 1e-3 D_w (the seed: the density ratio of air to water)
+TANK_FRICTION = 0.5
+SOLVER_ITERATIONS = 10
+MESH_SECTIONS = 24           # a cylinder's facets for the submerged-volume cut
+GLASS_COLOR = (0.75, 0.85, 0.9, 0.25)
+
+
+@dataclass
+class Body:
+    """The object's geometry for the water forces: a convex mesh in its object frame, its
+    projected-area law and sizes."""
+    kind: str
+    dims: tuple[float, float, float]   # x, y, z as dropped (see scene.dimensions)
+    shape: object                     # galileo.shapes shape (object frame)
+    orn0: tuple                       # orientation at release
+    tris: np.ndarray                  # (T, 3, 3) triangles, object frame, outward
+    volume_scale: float               # nominal volume / mesh volume
+    volume_m3: float
+    half_extents: tuple               # box: half sizes; cylinder: (half length, radius)
+    r_m: float                        # half the largest dimension
+    mean_area_m2: float
+
+    @classmethod
+    def of(cls, kind: str, volume_m3: float, area_m2: float, max_dim_m: float = math.inf) -> "Body | None":
+        dims = dimensions(kind, volume_m3, area_m2, max_dim_m)
+        if dims is None:
+            return None
+        shape, orn0 = body_shape(kind, dims)
+        m = shape.make_mesh(MESH_SECTIONS)
+        tris = np.asarray(m.triangles, float)
+        if isinstance(shape, Box):
+            half = tuple(s / 2 for s in shape.size_m)
+            areas = (shape.size_m[1] * shape.size_m[2], shape.size_m[0] * shape.size_m[2],
+                     shape.size_m[0] * shape.size_m[1])
+            mean_area = sum(areas) / 2.0   # Cauchy: mean projection = surface / 4
+        else:
+            length, diam = shape.size_m[0], shape.size_m[1]
+            half = (length / 2, diam / 2)
+            mean_area = (2 * math.pi * (diam / 2) ** 2 + math.pi * diam * length) / 4.0
+        return cls(kind, dims, shape, orn0, tris, volume_m3 / float(m.volume), volume_m3, half,
+                   max(dims) / 2, mean_area)
+
+    def projected_area(self, u_obj) -> float:
+        """Area seen along the unit vector u (object frame)."""
+        sx, sy, sz = self.shape.size_m
+        if isinstance(self.shape, Box):
+            return abs(u_obj[0]) * sy * sz + abs(u_obj[1]) * sx * sz + abs(u_obj[2]) * sx * sy
+        ax = abs(u_obj[0])   # a cylinder's axis is its object x
+        return ax * math.pi * (sy / 2) ** 2 + math.sqrt(max(0.0, 1.0 - ax * ax)) * sy * sx
+
+    def z_extent(self, rot: tuple) -> float:
+        """Half the object's vertical extent at rotation `rot` (row-major 3x3, object->world)."""
+        r20, r21, r22 = rot[6], rot[7], rot[8]
+        if isinstance(self.shape, Box):
+            hx, hy, hz = self.half_extents
+            return abs(r20) * hx + abs(r21) * hy + abs(r22) * hz
+        hl, r = self.half_extents
+        return abs(r20) * hl + r * math.sqrt(max(0.0, 1.0 - r20 * r20))
+
+
+def submerged(tris: np.ndarray, level: float) -> tuple[float, np.ndarray]:
+    """Volume (m^3) and centroid of the part of a closed, outward-oriented triangle mesh (world
+    frame, (T, 3, 3)) below the plane z = level."""
+    apex = np.array([tris[:, :, 0].mean(), tris[:, :, 1].mean(), level])
+    p = tris - apex                           # apex on the water plane: the cap adds nothing
+    below = p[:, :, 2] < 0
+    n_below = below.sum(axis=1)
+    pieces = [p[n_below == 3]]                # wholly under water
+    for k in (1, 2):
+        sel = n_below == k
+        if not sel.any():
+            continue
+        b = below[sel]
+        # roll each triangle's vertices (orientation kept) so the one on its own side comes first
+        odd = np.argmax(b if k == 1 else ~b, axis=1)
+        idx = (odd[:, None] + np.arange(3)[None, :]) % 3
+        t = np.take_along_axis(p[sel], idx[:, :, None], axis=1)
+        a, v1, v2 = t[:, 0], t[:, 1], t[:, 2]
+        q1 = a + (a[:, 2] / (a[:, 2] - v1[:, 2]))[:, None] * (v1 - a)   # edge a-v1 meets the plane
+        q2 = a + (a[:, 2] / (a[:, 2] - v2[:, 2]))[:, None] * (v2 - a)
+        if k == 1:      # only a under water: the triangle (a, q1, q2)
+            pieces.append(np.stack([a, q1, q2], axis=1))
+        else:           # a above, v1 and v2 under: the quad (q1, v1, v2, q2)
+            pieces.append(np.stack([q1, v1, v2], axis=1))
+            pieces.append(np.stack([q1, v2, q2], axis=1))
+    t = np.concatenate(pieces)
+    vol6 = np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2]))   # 6 x signed tetrahedra
+    v6 = float(vol6.sum())
+    if v6 <= 0.0:
+        return 0.0, apex
+    return v6 / 6.0, (vol6[:, None] * t.sum(axis=1)).sum(axis=0) / (4.0 * v6) + apex
+
+
+class _World:
+    """The tank in the process's client (static), built once per tank geometry."""
+
+    def __init__(self, scene: SplashScene, visual: bool):
+        self.key = (scene.geometry_key(), visual)
+        cid = self.cid = client()
+        pb.resetSimulation(physicsClientId=cid)
+        pb.setPhysicsEngineParameter(fixedTimeStep=1.0 / scene.sim_hz, numSubSteps=0,
+                                     deterministicOverlappingPairs=1, numSolverIterations=SOLVER_ITERATIONS,
+                                     physicsClientId=cid)
+        pb.setGravity(0, 0, -scene.gravity_mps2, physicsClientId=cid)
+        t = scene.tank
+        (sx, sy, sz), w = t.size_m, t.wall_m
+        self.statics = []
+        for half, pos in (([sx / 2 + w, sy / 2 + w, w / 2], [0, 0, -w / 2]),                  # floor
+                          ([w / 2, sy / 2 + w, sz / 2], [-(sx / 2 + w / 2), 0, sz / 2]),     # walls
+                          ([w / 2, sy / 2 + w, sz / 2], [sx / 2 + w / 2, 0, sz / 2]),
+                          ([sx / 2, w / 2, sz / 2], [0, -(sy / 2 + w / 2), sz / 2]),
+                          ([sx / 2, w / 2, sz / 2], [0, sy / 2 + w / 2, sz / 2])):
+            col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=cid)
+            vis = (pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=list(GLASS_COLOR),
+                                        physicsClientId=cid) if visual else -1)
+            b = pb.createMultiBody(0, col, vis, basePosition=pos, physicsClientId=cid)
+            pb.changeDynamics(b, -1, lateralFriction=1.0, restitution=0.0, physicsClientId=cid)
+            self.statics.append(b)
+        self.body: int | None = None
+        self.body_key = None
+
+
+class Simulator:
+    """Simulates a splash scene; `run` may be called many times with different latents."""
+
+    def __init__(self, scene: SplashScene, *, visual: bool = False):
+        self.scene = scene
+        self.visual = visual
+        self.spf = None
+        self.steps = 0
+        self._bodies: dict = {}
+
+    @property
+    def world(self) -> _World:
+        return cached_world((self.scene.geometry_key(), self.visual), lambda: _World(self.scene, self.visual))
+
+    def body_of(self, area_cm2: float) -> Body | None:
+        """The object's geometry with this bottom area (None: no such object fits; cached)."""
+        key = float(area_cm2)
+        if key not in self._bodies:
+            o = self.scene.obj
+            if len(self._bodies) > 64:
+                self._bodies.clear()
+            self._bodies[key] = Body.of(o.kind, o.volume_m3, key * CM2, self.scene.max_dim_m())
+        return self._bodies[key]
+
+    def _place(self, body: Body, values: dict) -> int:
+        """A fresh object body at the release point, at rest, with the values' density."""
+        w = self.world
+        cid = w.cid
+        if w.body is not None:
+            pb.removeBody(w.body, physicsClientId=cid)
+            w.body = None
+        mass = values["density_g_cm3"] * 1000.0 * body.volume_m3
+        b = pb.createMultiBody(mass, collision_shape(body.shape, cid),
+                               visual_shape(body.shape, cid) if self.visual else -1,
+                               basePosition=list(self.scene.release_m), baseOrientation=list(body.orn0),
+                               physicsClientId=cid)
+        pb.changeDynamics(b, -1, lateralFriction=TANK_FRICTION, restitution=0.0, linearDamping=0.0,
+                          angularDamping=0.0, rollingFriction=0.0, spinningFriction=0.0,
+                          localInertiaDiagonal=(mass * body.shape.inertia_per_kg()).tolist(),
+                          activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING, physicsClientId=cid)
+        w.body = b
+        return b
+
+    def values(self, values: dict | None) -> dict:
+        out = self.scene.latents()
+        out.update(values or {})
+        return out
+
+    def frames(self, values: dict | None = None) -> "FrameStepper | None":
+        """A stepper over the frames of one run from the release (frame 0: at rest), or None
+        where the values' area gives no object that fits (see scene.dimensions)."""
+        v = self.values(values)
+        body = self.body_of(v["area_cm2"])
+        if body is None:
+            return None
+        fps = self.scene.fps
+        spf = self.scene.sim_hz / fps
+        if abs(spf - round(spf)) > 1e-9:
+            raise GalileoError(f"sim_hz {self.scene.sim_hz} is not a multiple of fps {fps}")
+        return FrameStepper(self, body, self._place(body, v), v, int(round(spf)))
+
+    def run(self, n_frames: int, values: dict | None = None, fps: float | None = None,
+            on_frame: Callable[[int, np.ndarray, np.ndarray], bool] | None = None) -> Trajectory:
+        """`n_frames` frames from the release (frame 0 is t = 0): positions, velocities and
+        orientations. `on_frame(frame, position, velocity)` may return True to stop early."""
+        if fps is not None and abs(fps - self.scene.fps) > 1e-9:
+            raise GalileoError(f"the splash simulates at its camera's {self.scene.fps:g} fps, not {fps:g}")
+        stepper = self.frames(values)
+        if stepper is None:
+            raise GalileoError("no object of this volume shows that area from below and fits the tank")
+        pos = np.empty((1, n_frames, 3))
+        vel = np.empty((1, n_frames, 3))
+        orn = np.empty((1, n_frames, 4))
+        done = n_frames
+        for f in range(n_frames):
+            p, q, lin, _ = stepper.advance() if f else stepper.state()
+            pos[0, f], orn[0, f], vel[0, f] = p, q, lin
+            if on_frame is not None and on_frame(f, pos[:, f], vel[:, f]):
+                done = f + 1
+                break
+        return Trajectory(self.scene.fps, [self.scene.obj.name], pos[:, :done], vel[:, :done], orn[:, :done])
+
+
+class FrameStepper:
+    """One run, a frame at a time; the water's forces applied at every physics step."""
+
+    def __init__(self, sim: Simulator, body: Body, body_id: int, values: dict, spf: int):
+        sc = sim.scene
+        self.sim, self.geom, self.b, self.spf = sim, body, body_id, spf
+        self.cid = sim.world.cid
+        t = sc.tank
+        self.level = t.water_level_m
+        self.rho_w = t.water_density_kg_m3
+        self.g = sc.gravity_mps2
+        self.d_water = float(values["drag_water"])
+        self.d_air = AIR_DRAG_RATIO * self.d_water
+        self._tris = body.tris.reshape(-1, 3)
+
+    def state(self):
+        """(position, orientation xyzw, linear velocity, angular velocity) now."""
+        pos, orn = pb.getBasePositionAndOrientation(self.b, physicsClientId=self.cid)
+        lin, ang = pb.getBaseVelocity(self.b, physicsClientId=self.cid)
+        return pos, orn, lin, ang
+
+    def forces(self, pos, orn, lin, ang) -> tuple[float, float]:
+        """Apply buoyancy and drag for the coming step; returns (V_sub, submerged fraction)."""
+        geom, cid, b = self.geom, self.cid, self.b
+        rot = pb.getMatrixFromQuaternion(orn)
+        ext = geom.z_extent(rot)
+        z = pos[2]
+        if z - ext >= self.level:
+            v_sub, centre = 0.0, None
+        elif z + ext <= self.level:
+            v_sub, centre = geom.volume_m3, pos
+        else:
+            r = np.array(rot).reshape(3, 3)
+            world = (self._tris @ r.T + pos).reshape(-1, 3, 3)
+            v_mesh, c = submerged(world, self.level)
+            v_sub, centre = v_mesh * geom.volume_scale, c
+        frac = min(1.0, v_sub / geom.volume_m3)
+        fx = fy = fz = tx = ty = tz = 0.0
+        if v_sub > 0.0:
+            fz = self.rho_w * self.g * v_sub
+            dx, dy, dz = centre[0] - pos[0], centre[1] - pos[1], centre[2] - pos[2]
+            tx, ty = dy * fz, -dx * fz          # (centre - pos) x (0, 0, fz)
+        d = frac * self.d_water + (1.0 - frac) * self.d_air
+        speed = math.sqrt(lin[0] * lin[0] + lin[1] * lin[1] + lin[2] * lin[2])
+        if speed > 0.0:
+            u = (lin[0] / speed, lin[1] / speed, lin[2] / speed)
+            u_obj = (rot[0] * u[0] + rot[3] * u[1] + rot[6] * u[2], rot[1] * u[0] + rot[4] * u[1] + rot[7] * u[2],
+                     rot[2] * u[0] + rot[5] * u[1] + rot[8] * u[2])
+            k = -0.5 * self.rho_w * d * geom.projected_area(u_obj) * speed
+            fx += k * lin[0]
+            fy += k * lin[1]
+            fz += k * lin[2]
+        spin = math.sqrt(ang[0] * ang[0] + ang[1] * ang[1] + ang[2] * ang[2])
+        if spin > 0.0:
+            k = -0.125 * self.rho_w * d * geom.mean_area_m2 * geom.r_m ** 3 * spin
+            tx += k * ang[0]
+            ty += k * ang[1]
+            tz += k * ang[2]
+        pb.applyExternalForce(b, -1, (fx, fy, fz), pos, pb.WORLD_FRAME, physicsClientId=cid)
+        if tx or ty or tz:
+            pb.applyExternalTorque(b, -1, (tx, ty, tz), pb.WORLD_FRAME, physicsClientId=cid)
+        return v_sub, frac
+
+    def step(self) -> None:
+        """One physics step with the water's forces."""
+        self.forces(*self.state())
+        pb.stepSimulation(physicsClientId=self.cid)
+        self.sim.steps += 1
+
+    def advance(self):
+        """Step to the next frame; its state."""
+        for _ in range(self.spf):
+            self.step()
+        return self.state()

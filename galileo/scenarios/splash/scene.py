@@ -1,0 +1,325 @@
+"""Scene & priors of the splash scenario (Physics 101, splash abstract, section 3): an object
+dropped into a glass tank of water, filmed from the side.
+
+World frame (metres, z up): the origin is the centre of the tank's floor (inside); x runs
+along the tank's long side, across the image; y away from the camera; the water fills the
+tank up to `water_level_m`.
+
+Shapes (the seed's three primitives, two degrees of freedom each), given as volume `h` and
+the area `s` the object shows the water it falls into: its horizontal cross-section from
+below (the bottom face, a vertical cylinder's disc, a horizontal cylinder's length times
+diameter). That is the seed's "surface area that interacts with the water": its prior
+U(0.1, 20) cm^2 fits a bottom, not a whole surface (a 100 cm^3 cube has 21.5 cm^2 of bottom
+and 129 cm^2 of surface). The dimensions follow deterministically:
+
+    box (square bottom):   side a = sqrt(s), height H = h / s
+    vertical cylinder:     diameter D = 2 sqrt(s / pi), height H = h / s
+    horizontal cylinder:   diameter D = 4 h / (pi s), length L = pi s^2 / (4 h)
+
+Every positive (h, s) has a solution, but most are not objects: h = 100 cm^3 over s = 0.1
+cm^2 is a 10 m needle. A pair whose dimensions fall outside [MIN_DIM_M, the tank's inner
+width] has no solution here: `dimensions` returns None, the prior density is 0 there and
+MCMC rejects such a proposal without simulating (the prior is U(0.1, 20) cm^2 truncated to
+objects that fit in the tank). `equal_area(kind, h)` is the s at which the dimensions are
+equal (a = H; D = H; D = L), where the seed starts its chains.
+
+Latents (MCMC): surface area `area_cm2` ~ U(0.1, 20) cm^2, density `density_g_cm3` ~
+U(0.001, 2) g/cm^3, water drag `drag_water` ~ U(0.001, 2) (air drag = 1e-3 x water drag),
+observation start frame `start_frame` ~ U{5, ..., 30}: frame 0 of the video is frame
+`start_frame` of the simulation, which starts with the object at rest at `release_m`.
+The volume is fixed from the bottom-up estimate; mass = density x volume.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, ClassVar
+
+
+from ...camera import Camera, camera_from_json, look_at_camera
+from ...errors import SceneError
+from ...fields import field_value, number, pair
+from ...jsonio import read_json, write_json
+from ...latents import Latent, check_bounds
+from ...shapes import Box, Cylinder, Shape
+
+SCENE_VERSION = 1
+KINDS = ("box", "vcyl", "hcyl")   # square-bottomed box, vertical cylinder, horizontal cylinder
+VOLUME_RANGE_CM3 = (0.01, 100.0)
+MIN_DIM_M = 0.002                 # no dimension below 2 mm
+WATER_DENSITY_KG_M3 = 1000.0
+CM3 = 1e-6                        # m^3 per cm^3
+CM2 = 1e-4                        # m^2 per cm^2
+
+LATENT_SPECS = {
+    "area_cm2": Latent("area_cm2", "cm^2", (0.1, 20.0), "area the object shows the water from below (drag, shape)",
+                       limits=(0.0, math.inf), limits_open_low=True, narrow=0.05, broad=0.5),
+    "density_g_cm3": Latent("density_g_cm3", "g/cm^3", (0.001, 2.0), "object's density (mass = density x volume)",
+                            limits=(0.0, math.inf), limits_open_low=True, narrow=0.05, broad=0.5),
+    "drag_water": Latent("drag_water", "1", (0.001, 2.0), "drag coefficient in water (in air: 1e-3 x this)",
+                         limits=(0.0, math.inf), limits_open_low=True, narrow=0.0005, broad=0.002),
+    "start_frame": Latent("start_frame", "frame", (5.0, 30.0), "simulation frame shown as the video's frame 0",
+                          limits=(0.0, math.inf), narrow=1.0, broad=1.0, integer=True),
+}
+LATENT_NAMES = tuple(LATENT_SPECS)
+
+
+def dimensions(kind: str, volume_m3: float, area_m2: float, max_dim_m: float = math.inf) -> tuple | None:
+    """(length x, depth y, height z) in metres of a `kind` object of this volume and
+    bottom area, upright as dropped; None where no object of these sizes fits (see module)."""
+    if not (volume_m3 > 0 and area_m2 > 0):
+        return None
+    if kind == "box":
+        a = math.sqrt(area_m2)
+        dims = (a, a, volume_m3 / area_m2)
+    elif kind == "vcyl":
+        d = 2.0 * math.sqrt(area_m2 / math.pi)
+        dims = (d, d, volume_m3 / area_m2)
+    elif kind == "hcyl":
+        d = 4.0 * volume_m3 / (math.pi * area_m2)
+        dims = (math.pi * area_m2 ** 2 / (4.0 * volume_m3), d, d)
+    else:
+        raise SceneError(f"unknown shape kind {kind!r}; expected one of {', '.join(KINDS)}")
+    if min(dims) < MIN_DIM_M or max(dims) > max_dim_m:
+        return None
+    return dims
+
+
+def equal_area(kind: str, volume_m3: float) -> float:
+    """The bottom area (m^2) at which the object's dimensions are all equal."""
+    if kind == "box":
+        return volume_m3 ** (2.0 / 3.0)
+    if kind == "vcyl":   # 2 sqrt(s / pi) = h / s
+        return (volume_m3 * math.sqrt(math.pi) / 2.0) ** (2.0 / 3.0)
+    if kind == "hcyl":   # 4 h / (pi s) = pi s^2 / (4 h)
+        return (16.0 * volume_m3 ** 2 / math.pi ** 2) ** (1.0 / 3.0)
+    raise SceneError(f"unknown shape kind {kind!r}; expected one of {', '.join(KINDS)}")
+
+
+def body_shape(kind: str, dims: tuple) -> tuple[Shape, tuple[float, float, float, float]]:
+    """The Galileo shape (object frame) and the orientation (x, y, z, w) dropping it as `kind`
+    says: a box and a horizontal cylinder as they are (a cylinder's axis is its object x),
+    a vertical cylinder turned upright (its axis along world z)."""
+    lx, ly, lz = dims
+    if kind == "box":
+        return Box((lx, ly, lz)), (0.0, 0.0, 0.0, 1.0)
+    if kind == "hcyl":
+        return Cylinder((lx, ly, lz)), (0.0, 0.0, 0.0, 1.0)
+    s = math.sqrt(0.5)   # vcyl: its axis (object x) turned onto world z: -90 degrees about y
+    return Cylinder((lz, lx, lx)), (0.0, -s, 0.0, s)
+
+
+@dataclass(frozen=True)
+class Tank:
+    """The glass tank: inner size (x, y, z), wall thickness, water level above its floor."""
+    size_m: tuple[float, float, float] = (0.40, 0.16, 0.30)
+    wall_m: float = 0.006
+    water_level_m: float = 0.20
+    water_density_kg_m3: float = WATER_DENSITY_KG_M3
+
+    def to_json(self) -> dict:
+        return {"size_m": list(self.size_m), "wall_m": self.wall_m, "water_level_m": self.water_level_m,
+                "water_density_kg_m3": self.water_density_kg_m3}
+
+
+@dataclass(frozen=True)
+class SplashObject:
+    name: str
+    kind: str                        # box | vcyl | hcyl
+    volume_cm3: float
+    area_cm2: float
+    density_g_cm3: float
+    drag_water: float
+    material: str | None = None
+
+    @property
+    def volume_m3(self) -> float:
+        return self.volume_cm3 * CM3
+
+    @property
+    def mass_kg(self) -> float:
+        return self.density_g_cm3 * 1000.0 * self.volume_m3
+
+    def to_json(self) -> dict:
+        d: dict[str, Any] = {"name": self.name, "kind": self.kind, "volume_cm3": self.volume_cm3,
+                             "area_cm2": self.area_cm2, "density_g_cm3": self.density_g_cm3,
+                             "drag_water": self.drag_water}
+        if self.material is not None:
+            d["material"] = self.material
+        return d
+
+
+DEFAULT_BOUNDS = {n: lat.bounds for n, lat in LATENT_SPECS.items()}
+
+
+@dataclass(frozen=True)
+class SplashScene:
+    scenario: ClassVar[str] = "splash"
+    tank: Tank
+    obj: SplashObject
+    release_m: tuple[float, float, float]     # the object's centre when it is let go (at rest)
+    start_frame: int = 10                      # simulation frame shown as the video's frame 0
+    camera: Camera | None = None
+    sim_hz: int = 240
+    gravity_mps2: float = 9.81
+    bounds: dict = field(default_factory=lambda: dict(DEFAULT_BOUNDS))
+
+    # -- latents ------------------------------------------------------------------------------
+    def latent_specs(self) -> tuple[Latent, ...]:
+        return tuple(replace(LATENT_SPECS[n], bounds=self.bounds[n]) for n in LATENT_NAMES)
+
+    def latents(self) -> dict[str, float]:
+        o = self.obj
+        return {"area_cm2": o.area_cm2, "density_g_cm3": o.density_g_cm3, "drag_water": o.drag_water,
+                "start_frame": float(self.start_frame)}
+
+    def with_values(self, values: dict[str, float]) -> "SplashScene":
+        obj, start = self.obj, self.start_frame
+        for name, value in values.items():
+            if name == "start_frame":
+                start = int(round(value))
+            elif name in ("area_cm2", "density_g_cm3", "drag_water", "volume_cm3"):
+                obj = replace(obj, **{name: float(value)})
+            else:
+                raise SceneError(f"unknown name {name!r}; expected one of {', '.join(LATENT_NAMES)}, volume_cm3")
+        new = replace(self, obj=obj, start_frame=start)
+        new.validate()
+        return new
+
+    # -- geometry -------------------------------------------------------------------------------
+    @property
+    def fps(self) -> float:
+        return self.camera.fps if self.camera is not None else 30.0
+
+    def max_dim_m(self) -> float:
+        return min(self.tank.size_m[0], self.tank.size_m[1]) * 0.9
+
+    def dims(self, area_cm2: float | None = None) -> tuple | None:
+        o = self.obj
+        return dimensions(o.kind, o.volume_m3, (o.area_cm2 if area_cm2 is None else area_cm2) * CM2, self.max_dim_m())
+
+    def geometry_key(self) -> tuple:
+        return (self.tank, self.sim_hz, self.gravity_mps2)
+
+    # -- validation & IO ----------------------------------------------------------------------------
+    def validate(self) -> None:
+        t, o = self.tank, self.obj
+        if not VOLUME_RANGE_CM3[0] <= o.volume_cm3 <= VOLUME_RANGE_CM3[1]:
+            raise SceneError(f"object.volume_cm3: {o.volume_cm3:g} is outside {VOLUME_RANGE_CM3[0]:g}-"
+                             f"{VOLUME_RANGE_CM3[1]:g} cm^3")
+        if o.kind not in KINDS:
+            raise SceneError(f"object.kind: expected one of {', '.join(KINDS)}, got {o.kind!r}")
+        if self.dims() is None:
+            raise SceneError(f"object: no {o.kind} of {o.volume_cm3:g} cm^3 shows {o.area_cm2:g} cm^2 from below and "
+                             f"fits the tank (each side between {MIN_DIM_M * 1000:g} mm and "
+                             f"{self.max_dim_m() * 100:.1f} cm)")
+        if not 0 < t.water_level_m < t.size_m[2]:
+            raise SceneError(f"tank.water_level_m: {t.water_level_m:g} must lie between the floor and the tank's "
+                             f"height {t.size_m[2]:g}")
+        x, y, z = self.release_m
+        hx, hy = t.size_m[0] / 2, t.size_m[1] / 2
+        if not (-hx < x < hx and -hy < y < hy):
+            raise SceneError(f"release_m: ({x:g}, {y:g}) is outside the tank's inner {2 * hx:g} x {2 * hy:g} m")
+        if z <= t.water_level_m:
+            raise SceneError(f"release_m: the object must be let go above the water (z > {t.water_level_m:g} m)")
+        if self.start_frame < 0:
+            raise SceneError("start_frame: must be >= 0")
+        if self.camera is not None and self.sim_hz % self.camera.fps:
+            raise SceneError(f"sim_hz ({self.sim_hz}) must be a multiple of camera.fps ({self.camera.fps})")
+
+    def to_json(self) -> dict:
+        d: dict[str, Any] = {"scenario": self.scenario, "version": SCENE_VERSION, "tank": self.tank.to_json(),
+                             "object": self.obj.to_json(), "release_m": list(self.release_m),
+                             "start_frame": self.start_frame, "sim_hz": self.sim_hz,
+                             "gravity_mps2": self.gravity_mps2,
+                             "priors": {k: list(v) for k, v in self.bounds.items()}}
+        if self.camera is not None:
+            d["camera"] = self.camera.to_json()
+        return d
+
+    def save(self, path: str | Path) -> None:
+        write_json(path, self.to_json())
+
+    @classmethod
+    def load(cls, path: str | Path) -> "SplashScene":
+        try:
+            return scene_from_json(read_json(path, "scene file"))
+        except SceneError as e:
+            raise SceneError(f"{path}: {e}") from None
+
+
+def _vector3(d: dict, key: str, path: str) -> tuple[float, float, float]:
+    v = field_value(d, key, path)
+    where = f"{path}.{key}".lstrip(".")
+    if (not isinstance(v, list) or len(v) != 3
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
+        raise SceneError(f"{where}: expected three numbers (metres), got {v!r}")
+    return float(v[0]), float(v[1]), float(v[2])
+
+
+def scene_from_json(data: Any) -> SplashScene:
+    if not isinstance(data, dict):
+        raise SceneError("expected a JSON object at the top level")
+    if field_value(data, "scenario", "") != "splash":
+        raise SceneError("scenario: this is the splash scenario's parser")
+    version = field_value(data, "version", "", SCENE_VERSION)
+    if version != SCENE_VERSION:
+        raise SceneError(f"version: this Galileo reads splash scene version {SCENE_VERSION}, got {version!r}")
+    td = field_value(data, "tank", "")
+    size = _vector3(td, "size_m", "tank")
+    if min(size) <= 0:
+        raise SceneError(f"tank.size_m: expected three positive sizes, got {list(size)}")
+    tank = Tank(size, number(td, "wall_m", "tank", 0.006, lo=0, lo_open=True, hi=0.1),
+                number(td, "water_level_m", "tank", lo=0, lo_open=True),
+                number(td, "water_density_kg_m3", "tank", WATER_DENSITY_KG_M3, lo=1, hi=5000))
+    od = field_value(data, "object", "")
+    kind = field_value(od, "kind", "object")
+    if kind not in KINDS:
+        raise SceneError(f"object.kind: expected one of {', '.join(KINDS)}, got {kind!r}")
+    name = field_value(od, "name", "object", "object")
+    if not isinstance(name, str) or not name:
+        raise SceneError("object.name: expected a non-empty string")
+    material = field_value(od, "material", "object", None)
+    if material is not None and not isinstance(material, str):
+        raise SceneError("object.material: expected a string")
+    obj = SplashObject(name, kind, number(od, "volume_cm3", "object", lo=0, lo_open=True),
+                       number(od, "area_cm2", "object", lo=0, lo_open=True),
+                       number(od, "density_g_cm3", "object", lo=0, lo_open=True, hi=25),
+                       number(od, "drag_water", "object", lo=0, hi=100), material)
+    pd = field_value(data, "priors", "", {})
+    bounds = {}
+    for k, lat in LATENT_SPECS.items():
+        lo, hi = pair(pd, k, "priors", list(lat.bounds))
+        try:
+            bounds[k] = check_bounds(lat, lo, hi)
+        except ValueError as e:
+            raise SceneError(f"priors.{e}") from None
+    cam = field_value(data, "camera", "", None)
+    scene = SplashScene(tank, obj, _vector3(data, "release_m", ""),
+                        number(data, "start_frame", "", 10, lo=0, hi=10_000, integer=True),
+                        camera_from_json(cam) if cam is not None else None,
+                        number(data, "sim_hz", "", 240, lo=1, hi=10_000, integer=True),
+                        number(data, "gravity_mps2", "", 9.81, lo=0, hi=100), bounds)
+    scene.validate()
+    return scene
+
+
+def default_camera(tank: Tank, fps: float = 30.0, n_frames: int = 60) -> Camera:
+    """A side view of the tank from 0.9 m, level with the water line, slightly above it."""
+    z = tank.water_level_m + 0.02
+    return look_at_camera((0.0, -0.95, z + 0.04), (0.0, 0.0, z), focal_px=900.0, fps=fps, n_frames=n_frames)
+
+
+def default_scene(kind: str = "box", volume_cm3: float = 27.0, density_g_cm3: float = 2.7,
+                  drag_water: float = 0.8, area_cm2: float | None = None, start_frame: int = 10,
+                  camera: Camera | None = None, material: str | None = None) -> SplashScene:
+    """A tank of water and one object let go 8 cm above the water, seen from the side."""
+    tank = Tank()
+    if area_cm2 is None:
+        area_cm2 = equal_area(kind, volume_cm3 * CM3) / CM2
+    obj = SplashObject("object", kind, volume_cm3, area_cm2, density_g_cm3, drag_water, material)
+    scene = SplashScene(tank, obj, (0.0, 0.0, tank.water_level_m + 0.08), start_frame,
+                        camera if camera is not None else default_camera(tank))
+    scene.validate()
+    return scene
