@@ -108,7 +108,7 @@ def cmd_infer(args: argparse.Namespace) -> int:
         tracks = scenario.track(args.video, scene, progress=not args.quiet)
     result = infer(scene, tracks, cfg, progress=not args.quiet)
     npz = result.save(args.out)
-    print(f"MAP: {scenario.summary(result.map)}")
+    print(f"MAP: {scenario.summary(result.scene, result.map)}")
     print(f"wrote {args.out} and {npz} ({result.timing_s['wall']:.1f} s, {result.steps} physics steps)")
     return 0
 

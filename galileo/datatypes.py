@@ -26,6 +26,7 @@ class ObjectTrack:
     shape: Shape
     offset_units: int | None = None
     detected_by: str = "motion"  # motion (ramp object) | scene (target, from the scene file)
+    bottom_up: dict = field(default_factory=dict)   # a scenario's other bottom-up estimates (JSON values)
     # for drawing (not saved): image centre and features per frame
     center_px: np.ndarray | None = None
     features_px: list = field(default_factory=list)
@@ -37,6 +38,8 @@ class ObjectTrack:
              "velocity_mps": rows(self.velocity_mps), "visible": [bool(v) for v in self.visible],
              "shape": {"type": self.shape.type, "size_m": list(self.shape.size_m)},
              "offset_units": self.offset_units, "detected_by": self.detected_by}
+        if self.bottom_up:
+            d["bottom_up"] = dict(self.bottom_up)
         return d
 
 
@@ -72,8 +75,11 @@ class Tracks:
                 pos = np.array([p if p is not None else nan3 for p in o["position_m"]], float).reshape(-1, 3)
                 vel = np.array([p if p is not None else nan3 for p in o["velocity_mps"]], float).reshape(-1, 3)
                 shape = Shape(o["shape"]["type"], tuple(o["shape"]["size_m"]))
+                bottom_up = o.get("bottom_up", {})
+                if not isinstance(bottom_up, dict):
+                    raise TypeError("bottom_up must be an object")
                 objs.append(ObjectTrack(o["name"], o["role"], pos, vel, vis, shape, o.get("offset_units"),
-                                        o.get("detected_by", "motion")))
+                                        o.get("detected_by", "motion"), bottom_up))
             return cls(float(d["fps"]), objs)
         except (KeyError, TypeError, ValueError, IndexError) as e:
             raise GalileoError(f"malformed tracks JSON: {e}") from None

@@ -134,14 +134,15 @@ class Scenario(ABC):
     def drawing(self, scene) -> Drawing:
         """Static geometry and object meshes for the viewer and rerun."""
 
-    def derived(self, values: dict[str, float]) -> dict[str, float | None]:
-        """Quantities derived from a latent vector that a result reports (e.g. a mass ratio)."""
+    def derived(self, scene, values: dict[str, float]) -> dict[str, float | None]:
+        """Quantities derived from a latent vector in a (prepared) scene that a result reports
+        (e.g. a mass ratio, or a mass from a density and the bottom-up volume)."""
         return {}
 
-    def summary(self, values: dict[str, float]) -> str:
+    def summary(self, scene, values: dict[str, float]) -> str:
         """One line for a MAP estimate (what `galileo infer` prints after "MAP: ")."""
         parts = [f"{k} = {v:.3f}" for k, v in values.items()]
-        parts += [f"{k} = {v:.3g}" for k, v in self.derived(values).items() if v is not None]
+        parts += [f"{k} = {v:.3g}" for k, v in self.derived(scene, values).items() if v is not None]
         return ", ".join(parts)
 
     def predict(self, result_path: str | Path, questions: dict) -> dict:

@@ -13,7 +13,7 @@ from .errors import SceneError
 from .model import Scenario
 
 DEFAULT = "ramp"
-_BUILTIN = {"ramp": "galileo.scenarios.ramp:RampScenario"}
+_BUILTIN = {"ramp": "galileo.scenarios.ramp:RampScenario", "splash": "galileo.scenarios.splash:SplashScenario"}
 _loaded: dict[str, Scenario] = {}
 
 

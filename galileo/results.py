@@ -111,7 +111,7 @@ class InferenceResult:
                 "burn_in_sweeps": burn_in(self.samples.shape[1])}
 
     def derived(self) -> dict:
-        return registry.get(self.scenario).derived(self.map)
+        return registry.get(self.scenario).derived(self.scene, self.map)
 
     def mass_ratio(self) -> float | None:
         return self.derived().get("mass_ratio")

@@ -78,13 +78,13 @@ class RampScenario(Scenario):
             objects.append(Mesh(obj.name, np.asarray(m.vertices), np.asarray(m.faces), OBJECT_COLORS[i % 2]))
         return Drawing(static=(ramp,), objects=tuple(objects), ground_z_m=0.0)
 
-    def derived(self, values):
+    def derived(self, scene, values):
         if "m2_kg" in values:
             return {"mass_ratio": values["m1_kg"] / values["m2_kg"]}
         return {"mass_ratio": None}
 
-    def summary(self, values):
-        ratio = self.derived(values)["mass_ratio"]
+    def summary(self, scene, values):
+        ratio = self.derived(scene, values)["mass_ratio"]
         return ", ".join(f"{k} = {v:.3f}" for k, v in values.items()) + (
             f", m1/m2 = {ratio:.2f}" if ratio is not None else "")
 

@@ -348,7 +348,7 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
         centre_px = np.full((n, 2), np.nan)
         centre_px[vis] = cam.project(pos[vis])
         objects.append(ObjectTrack(obj.name, obj.role, pos, vel, vis.copy(), f0.shape, offsets.get(obj.name),
-                                   how, centre_px, t.features))
+                                   how, center_px=centre_px, features_px=t.features))
     tracks = Tracks(fps, objects)
     if debug_video is not None:
         write_debug_video(debug_video, (yuv_to_rgb(g, c) for g, c in zip(gray, chroma)), tracks, fps)

@@ -1,0 +1,129 @@
+"""The splash scenario of Physics 101 (the splash abstract): an object dropped into a tank of
+water; its density, bottom area and water drag (and the observation start frame) from the
+tracked positions and velocities, mass = density x the bottom-up volume.
+
+This folder holds all of it: the scene and priors (`scene.py`), buoyancy and drag in Bullet
+(`physics.py`), the position-and-velocity likelihood with its exact speed-ups
+(`likelihood.py`). `SplashScenario` is its face to the rest of Galileo.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ...errors import GalileoError
+from ...latents import Noise
+from ...model import Drawing, Mesh, Scenario
+from .scene import CM2, CM3, KINDS, equal_area
+
+WATER_COLOR = (90, 150, 230)
+GLASS_COLOR = (200, 220, 235)
+OBJECT_COLOR = (220, 90, 50)
+START_DENSITY_G_CM3 = 0.5     # the seed: chains start at half the density of water
+
+
+def _box_mesh(centre, size, color, opacity, name) -> Mesh:
+    import trimesh
+
+    m = trimesh.creation.box(extents=size)
+    m.apply_translation(centre)
+    return Mesh(name, np.asarray(m.vertices), np.asarray(m.faces), color, opacity)
+
+
+class SplashScenario(Scenario):
+    name = "splash"
+    description = ("an object dropped into a tank of water (Physics 101, splash): density, bottom area, "
+                   "water drag and start frame from tracked positions and velocities; mass = density x volume")
+    noise = Noise("sigma_px", "px", 1.0, "SD of tracked positions (px) and velocities (px/frame), the seed's Sigma = 1")
+
+    def scene_from_json(self, data):
+        from .scene import scene_from_json
+
+        return scene_from_json(data)
+
+    def default_scene(self):
+        from .scene import default_scene
+
+        return default_scene()
+
+    def latents(self, scene):
+        return scene.latent_specs()
+
+    def track(self, video_path, scene, *, progress: bool = True, debug_video=None):
+        raise GalileoError("splash videos cannot be tracked yet: give --tracks (a tracks file with the object's "
+                           "positions and velocities)")
+
+    def prepare(self, scene, tracks):
+        """The scene with the bottom-up shape kind and volume from the tracks (when they carry
+        them); checks that the tracks hold one object at the camera's frame rate."""
+        if len(tracks.objects) != 1:
+            raise GalileoError(f"splash tracks hold one object, got {len(tracks.objects)}")
+        if scene.camera is None:
+            raise GalileoError("the splash scene needs a camera (the likelihood measures in pixels)")
+        if abs(tracks.fps - scene.fps) > 1e-9:
+            raise GalileoError(f"tracks at {tracks.fps:g} fps but the scene camera at {scene.fps:g} fps")
+        found = tracks.objects[0].bottom_up
+        obj = scene.obj
+        if "kind" in found:
+            if found["kind"] not in KINDS:
+                raise GalileoError(f"tracks: bottom_up.kind must be one of {', '.join(KINDS)}, got {found['kind']!r}")
+            obj = dataclasses.replace(obj, kind=found["kind"])
+        if "volume_cm3" in found:
+            obj = dataclasses.replace(obj, volume_cm3=float(found["volume_cm3"]))
+        if obj is scene.obj:
+            return scene
+        new = dataclasses.replace(scene, obj=dataclasses.replace(
+            obj, area_cm2=equal_area(obj.kind, obj.volume_m3) / CM2))
+        new.validate()
+        return new
+
+    def simulate(self, scene, n_frames, values=None, fps=None):
+        from .physics import Simulator
+
+        return Simulator(scene).run(n_frames, values, fps=fps)
+
+    def likelihood(self, prepared_scene, tracks, noise, speedups=True):
+        from .likelihood import SplashLikelihood
+
+        return SplashLikelihood(prepared_scene, tracks, noise, speedups)
+
+    def initial_positions(self, prepared_scene, latents, bounds, n_chains, seed):
+        """The seed's start: the bottom area at which the object's dimensions are equal, density
+        0.5 g/cm^3; water drag and start frame drawn from the prior (clipped into the bounds)."""
+        starts = super().initial_positions(prepared_scene, latents, bounds, n_chains, seed)
+        o = prepared_scene.obj
+        names = [lat.name for lat in latents]
+        for name, value in (("area_cm2", equal_area(o.kind, o.volume_m3) / CM2),
+                            ("density_g_cm3", START_DENSITY_G_CM3)):
+            j = names.index(name)
+            starts[:, j] = float(np.clip(value, bounds[j, 0], bounds[j, 1]))
+        return starts
+
+    def drawing(self, scene) -> Drawing:
+        from .physics import Body
+
+        t = scene.tank
+        (sx, sy, sz), w = t.size_m, t.wall_m
+        static = [
+            _box_mesh((0, 0, t.water_level_m / 2), (sx, sy, t.water_level_m), WATER_COLOR, 0.25, "water"),
+            _box_mesh((0, 0, -w / 2), (sx + 2 * w, sy + 2 * w, w), GLASS_COLOR, 0.5, "tank/floor"),
+            _box_mesh((-(sx + w) / 2, 0, sz / 2), (w, sy + 2 * w, sz), GLASS_COLOR, 0.2, "tank/left"),
+            _box_mesh(((sx + w) / 2, 0, sz / 2), (w, sy + 2 * w, sz), GLASS_COLOR, 0.2, "tank/right"),
+            _box_mesh((0, (sy + w) / 2, sz / 2), (sx, w, sz), GLASS_COLOR, 0.2, "tank/back"),
+        ]
+        o = scene.obj
+        body = Body.of(o.kind, o.volume_m3, o.area_cm2 * CM2, scene.max_dim_m())
+        m = body.shape.make_mesh(32)
+        obj = Mesh(o.name, np.asarray(m.vertices), np.asarray(m.faces), OBJECT_COLOR)
+        return Drawing(static=tuple(static), objects=(obj,), ground_z_m=None)
+
+    def derived(self, scene, values) -> dict:
+        """Mass (kg) = density x the bottom-up volume, and that volume (cm^3)."""
+        volume_cm3 = scene.obj.volume_cm3
+        return {"mass_kg": values["density_g_cm3"] * volume_cm3 * CM3 * 1000.0, "volume_cm3": volume_cm3}
+
+    def summary(self, scene, values):
+        d = self.derived(scene, values)
+        return (", ".join(f"{k} = {v:.4g}" for k, v in values.items())
+                + f"; mass {1000 * d['mass_kg']:.4g} g from a volume of {d['volume_cm3']:.4g} cm^3")

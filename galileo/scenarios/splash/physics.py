@@ -286,7 +286,7 @@ class FrameStepper:
         fx = fy = fz = tx = ty = tz = 0.0
         if v_sub > 0.0:
             fz = self.rho_w * self.g * v_sub
-            dx, dy, dz = centre[0] - pos[0], centre[1] - pos[1], centre[2] - pos[2]
+            dx, dy = centre[0] - pos[0], centre[1] - pos[1]
             tx, ty = dy * fz, -dx * fz          # (centre - pos) x (0, 0, fz)
         d = frac * self.d_water + (1.0 - frac) * self.d_air
         speed = math.sqrt(lin[0] * lin[0] + lin[1] * lin[1] + lin[2] * lin[2])

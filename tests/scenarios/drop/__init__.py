@@ -120,7 +120,7 @@ class DropScenario(Scenario):
                        objects=(Mesh(BALL, np.asarray(ball.vertices), np.asarray(ball.faces), BALL_COLOR),),
                        ground_z_m=0.0)
 
-    def derived(self, values):
+    def derived(self, scene, values):
         return {"energy_kept": values["e"] ** 2} if "e" in values else {}
 
     def video_timing(self, scene: DropScene):
