@@ -62,7 +62,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_dataset(args: argparse.Namespace) -> int:
-    from .scenarios.ramp.dataset import build
+    if args.scenario == "splash":
+        from .scenarios.splash.dataset import build
+    else:
+        from .scenarios.ramp.dataset import build
 
     entries = build(args.preset, args.out, seed=args.seed, workers=args.workers, progress=not args.quiet)
     print(f"wrote {len(entries)} video(s) to {args.out} (index: {Path(args.out) / 'index.json'})")
@@ -185,6 +188,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_simulate)
 
     d = sub.add_parser("dataset", help="render Physics-101-style ramp videos with ground truth")
+    d.add_argument("--scenario", choices=["ramp", "splash"], default="ramp",
+                   help="ramp (default) or splash: objects dropped into a tank of water")
     d.add_argument("--preset", choices=["demo", "small", "full"], default="demo")
     d.add_argument("--out", required=True, help="output folder")
     d.add_argument("--seed", type=int, default=0)

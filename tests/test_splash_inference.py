@@ -17,15 +17,15 @@ N_FRAMES = 40
 
 
 def observed(scene, start=TRUE_START, n=N_FRAMES, noise_px=0.0, seed=0):
-    """Tracks of the scene's own simulation from frame `start` on (the video's frame 0), with
+    """Tracks of the scene's own simulation from physics step `start` on (the video's frame 0), with
     Gaussian noise of `noise_px` pixels (and pixels per frame) on every component."""
     from galileo.scenarios.splash.likelihood import metres_per_pixel
 
-    traj = Simulator(scene).run(start + n)
+    traj = Simulator(scene).run(n, start_step=start)
     rng = np.random.default_rng(seed)
     mpp = metres_per_pixel(scene)
-    pos = traj.position_m[0, start:] + rng.normal(0, noise_px * mpp, (n, 3))
-    vel = traj.velocity_mps[0, start:] + rng.normal(0, noise_px * mpp * scene.fps, (n, 3))
+    pos = traj.position_m[0] + rng.normal(0, noise_px * mpp, (n, 3))
+    vel = traj.velocity_mps[0] + rng.normal(0, noise_px * mpp * scene.fps, (n, 3))
     from galileo.shapes import Box
 
     track = ObjectTrack("object", "object", pos, vel, np.ones(n, bool), Box((0.01, 0.01, 0.01)),
@@ -35,7 +35,7 @@ def observed(scene, start=TRUE_START, n=N_FRAMES, noise_px=0.0, seed=0):
 
 @pytest.fixture(scope="module")
 def sinker():
-    scene = default_scene("vcyl", 20.0, 2.0, 0.7, start_frame=TRUE_START)
+    scene = default_scene("vcyl", 20.0, 2.0, 0.7, start_step=TRUE_START)
     return scene, observed(scene, noise_px=0.5)
 
 
@@ -51,7 +51,7 @@ def test_fast_and_plain_paths_make_the_same_decisions(sinker):
     assert fast.proposals["early_stop"].any()
 
 
-def test_a_start_frame_proposal_simulates_nothing(sinker):
+def test_a_start_step_proposal_simulates_nothing(sinker):
     scene, tracks = sinker
     scenario = registry.get("splash")
     lik = scenario.likelihood(scenario.prepare(scene, tracks), tracks, 1.0)
@@ -91,13 +91,13 @@ def test_the_seeds_protocol_finds_the_truths_ridge():
     log-likelihood is within the chi-square bound of the truth's: 2 (l_MAP - l_true) ~ chi2(4)
     if the MAP is the maximum, 99.9% below 18.5, so |l_MAP - l_true| < 9.2; a sampler lost off
     the ridge falls far below the truth. Mass, the product, within 15%."""
-    scene = default_scene("vcyl", 20.0, 1.6, 0.7, start_frame=TRUE_START)
+    scene = default_scene("vcyl", 20.0, 1.6, 0.7, start_step=TRUE_START)
     tracks = observed(scene, noise_px=0.5)
     res = infer(scene, tracks, RunConfig(chains=50, sweeps=75, seed=1), progress=False)
     scenario = registry.get("splash")
     lik = scenario.likelihood(scenario.prepare(scene, tracks), tracks, 1.0)
     l_true = lik(np.array([scene.obj.area_cm2, 1.6, 0.7, TRUE_START]))[0]
-    assert res.map["start_frame"] == TRUE_START
+    assert res.map["start_step"] == TRUE_START
     assert abs(res.map_loglik - l_true) < 9.2, (res.map, res.map_loglik, l_true)
     assert res.derived()["mass_kg"] == pytest.approx(0.032, rel=0.15)
 
@@ -116,7 +116,7 @@ def test_cli_simulate_and_infer_on_a_splash_scene(sinker, tmp_path):
                  str(tmp_path / "tracks.json"), "--chains", "2", "--sweeps", "2", "--workers", "1", "--quiet",
                  "--out", str(tmp_path / "result.json")]) == 0
     d = json.loads((tmp_path / "result.json").read_text())
-    assert d["scenario"] == "splash" and d["latents"] == ["area_cm2", "density_g_cm3", "drag_water", "start_frame"]
+    assert d["scenario"] == "splash" and d["latents"] == ["area_cm2", "density_g_cm3", "drag_water", "start_step"]
     assert d["volume_cm3"] == 20.0
     assert d["mass_kg"] == pytest.approx(d["map"]["density_g_cm3"] * 20.0 / 1000)
     assert d["config"]["sigma_px"] == 1.0
@@ -126,7 +126,7 @@ def test_cli_simulate_and_infer_on_a_splash_scene(sinker, tmp_path):
     ({"object": {"volume_cm3": 500.0}}, "volume_cm3"),
     ({"object": {"volume_cm3": 0.001}}, "volume_cm3"),
     ({"tank": None}, "tank"),
-    ({"priors": {"start_frame": [10, 10]}}, "priors.start_frame"),
+    ({"priors": {"start_step": [10, 10]}}, "priors.start_step"),
 ])
 def test_bad_splash_scenes_are_one_line_errors(tmp_path, change, needle):
     import subprocess

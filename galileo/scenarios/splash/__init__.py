@@ -51,8 +51,11 @@ class SplashScenario(Scenario):
         return scene.latent_specs()
 
     def track(self, video_path, scene, *, progress: bool = True, debug_video=None):
-        raise GalileoError("splash videos cannot be tracked yet: give --tracks (a tracks file with the object's "
-                           "positions and velocities)")
+        """The object's positions and velocities, and its bottom-up kind and volume, from the
+        video (`tracking.py`)."""
+        from .tracking import track
+
+        return track(video_path, scene, progress=progress, debug_video=debug_video)
 
     def prepare(self, scene, tracks):
         """The scene with the bottom-up shape kind and volume from the tracks (when they carry

@@ -1,20 +1,22 @@
 """Likelihood of the splash (the seed's eq. 2): tracked positions and velocities against Bullet.
 
     log p(x_o, v_o | s, rho, D_w, t) = sum over frames f where the object was seen of
-        log N(x_o[f] | x_s[t + f], sigma_x^2 I) + log N(v_o[f] | v_s[t + f], sigma_v^2 I)
+        log N(x_o[f] | x_s(t + f spf), sigma_x^2 I) + log N(v_o[f] | v_s(t + f spf), sigma_v^2 I)
 
 on the x and z components (the image plane of the side camera; depth is not observed).
 The simulation starts with the object at rest at the scene's release point; frame f of the
-video is frame t + f of the simulation (t: the observation start frame, a latent).
+video is physics step t + f * spf of the simulation (t: the observation start, a latent, in
+physics steps; spf = sim_hz / fps steps per frame).
 
 Units: the seed fixes Sigma = 1 without units. Here it is 1 in the video's own units: one
 pixel for positions and one pixel per frame for velocities (the tracker's resolution), so
 sigma_x = sigma_px * m_per_px and sigma_v = sigma_px * m_per_px * fps, where m_per_px is the
 size of a pixel at the release point's depth (depth / focal length). `sigma_px` = 1.
 
-The rest rule (as the ramp's): once, for two consecutive frames, the object moves slower than
-REST_MPS, turns slower than REST_RADPS and is not speeding up, later frames hold its last
-position at zero velocity. A (s, h) pair with no object that fits the tank
+The rest rule (as the ramp's), checked on the simulation's own frames (every spf steps from
+the release, whatever t): once, for two consecutive such frames, the object moves slower
+than REST_MPS, turns slower than REST_RADPS and is not speeding up, later steps hold its
+last position at zero velocity. A (s, h) pair with no object that fits the tank
 (`scene.dimensions`) has prior density 0: -inf without simulating.
 
 Exact speed-ups (`speedups=True`; the same accept/reject decisions and values as the plain
@@ -24,9 +26,9 @@ path, which simulates every frame of every proposal from the release):
   below the MH threshold.
 * at-rest cut-off: after the rest rule holds, the remaining frames are known without stepping.
 * reuse of what does not change with a latent: the simulation does not depend on t, only the
-  alignment does. A run that completes goes on to the horizon (the start frame's prior upper
-  bound + the video's length) and is kept (keyed on s, rho, D_w); a proposal of t is then
-  scored from the kept frames without simulating.
+  alignment does. A run that completes goes on to the horizon (the start's prior upper
+  bound + the video's length) and its every step is kept (keyed on s, rho, D_w); a proposal
+  of t is then scored from the kept steps without simulating.
 """
 from __future__ import annotations
 
@@ -56,7 +58,7 @@ def metres_per_pixel(scene: SplashScene) -> float:
 
 
 class SplashLikelihood:
-    """Callable log-likelihood over (area_cm2, density_g_cm3, drag_water, start_frame)."""
+    """Callable log-likelihood over (area_cm2, density_g_cm3, drag_water, start_step)."""
 
     def __init__(self, scene: SplashScene, tracks: Tracks, sigma_px: float = SIGMA_PX, speedups: bool = True,
                  cache_size: int = 4):
@@ -81,7 +83,8 @@ class SplashLikelihood:
         self.log_norm = -2 * n * math.log(self.sigma_x_m * math.sqrt(2 * math.pi)) \
             - 2 * n * math.log(self.sigma_v_mps * math.sqrt(2 * math.pi))
         self.sim = Simulator(scene)
-        self.horizon_start = int(scene.bounds["start_frame"][1])
+        self.spf = int(round(scene.sim_hz / self.fps))
+        self.horizon_start = int(scene.bounds["start_step"][1])
         self._kept: OrderedDict[tuple, tuple] = OrderedDict()
         self._cache_size = cache_size
 
@@ -107,56 +110,67 @@ class SplashLikelihood:
         return self.log_norm + total, early
 
     def _evaluate(self, values: dict, limit: float, record: bool = False):
-        t = int(round(values["start_frame"]))
+        t = int(round(values["start_step"]))
         key = (values["area_cm2"], values["density_g_cm3"], values["drag_water"])
-        n = self.n_frames
+        n, spf = self.n_frames, self.spf
+        last = t + (n - 1) * spf                  # the step shown as the video's last frame
         kept = self._kept.get(key) if self.speedups else None
-        if kept is not None and kept[0].shape[0] >= t + n:
+        if kept is not None and kept[0].shape[0] > last:
             self._kept.move_to_end(key)
             pos, vel, orn = kept
             total = 0.0
             for f in range(n):
-                total += self._term(f, pos[t + f], vel[t + f])
+                k = t + f * spf
+                total += self._term(f, pos[k], vel[k])
                 if total < limit:
                     return total, True, None
-            return total, False, (pos[t:t + n], vel[t:t + n], orn[t:t + n]) if record else None
+            return total, False, self._shown(kept, t) if record else None
         stepper = self.sim.frames(values)
         if stepper is None:   # no object of this volume shows that area and fits: prior 0
             return -math.inf, False, None
-        end = t + n
-        horizon = max(end, self.horizon_start + n) if self.speedups else end
-        pos, vel, orn = np.empty((horizon, 3)), np.empty((horizon, 3)), np.empty((horizon, 4))
+        horizon = max(last, self.horizon_start + (n - 1) * spf) if self.speedups else last
+        pos, vel, orn = np.empty((horizon + 1, 3)), np.empty((horizon + 1, 3)), np.empty((horizon + 1, 4))
         total = 0.0
         rest_run, speed_before, rest_at = 0, math.inf, None
-        for k in range(horizon):
+        state = stepper.state()
+        f = 0                                     # the next video frame to score
+        for k in range(horizon + 1):
             if rest_at is None:
-                p, q, lin, ang = stepper.advance() if k else stepper.state()
-                speed = math.sqrt(lin[0] * lin[0] + lin[1] * lin[1] + lin[2] * lin[2])
-                slow = (speed < REST_MPS and speed <= speed_before + REST_CREEP_MPS
-                        and ang[0] * ang[0] + ang[1] * ang[1] + ang[2] * ang[2] < REST_RADPS ** 2)
-                speed_before = speed
-                rest_run = rest_run + 1 if (k and slow) else 0
+                if k:
+                    state = stepper.step(state)
+                p, q, lin, ang = state
                 pos[k], orn[k], vel[k] = p, q, lin
-                if rest_run >= 2:   # at rest: this frame and all later ones hold still
-                    rest_at = k
-                    vel[k] = 0.0
+                if k % spf == 0:                  # the rest rule on the simulation's own frames
+                    speed = math.sqrt(lin[0] * lin[0] + lin[1] * lin[1] + lin[2] * lin[2])
+                    slow = (speed < REST_MPS and speed <= speed_before + REST_CREEP_MPS
+                            and ang[0] * ang[0] + ang[1] * ang[1] + ang[2] * ang[2] < REST_RADPS ** 2)
+                    speed_before = speed
+                    rest_run = rest_run + 1 if (k and slow) else 0
+                    if rest_run >= 2:             # at rest: this step and all later ones hold still
+                        rest_at = k
+                        vel[k] = 0.0
             else:
                 pos[k], orn[k], vel[k] = pos[rest_at], orn[rest_at], 0.0
-                if not self.speedups:   # the plain path steps through the rest all the same
-                    stepper.advance()
-            f = k - t
-            if 0 <= f < n:
+                if not self.speedups:             # the plain path steps through the rest all the same
+                    state = stepper.step(state)
+            if k == t + f * spf and f < n:
                 total += self._term(f, pos[k], vel[k])
+                f += 1
                 if total < limit:
                     return total, True, None
         if self.speedups:
             self._kept[key] = (pos, vel, orn)
             while len(self._kept) > self._cache_size:
                 self._kept.popitem(last=False)
-        return total, False, (pos[t:end], vel[t:end], orn[t:end]) if record else None
+        return total, False, self._shown((pos, vel, orn), t) if record else None
+
+    def _shown(self, kept, t: int):
+        """The kept steps shown as video frames 0..F-1 with start step t."""
+        idx = t + np.arange(self.n_frames) * self.spf
+        return tuple(a[idx] for a in kept)
 
     def motion(self, position) -> Trajectory:
-        """The simulated motion as scored: video frames 0..F-1 (simulation frames t..t+F-1)."""
+        """The simulated motion as scored: video frames 0..F-1 (physics steps t + f spf)."""
         values = self.values_of(position)
         _, _, rec = self._evaluate(values, -math.inf, record=True)
         if rec is None:

@@ -212,7 +212,7 @@ class Simulator:
         return out
 
     def frames(self, values: dict | None = None) -> "FrameStepper | None":
-        """A stepper over the frames of one run from the release (frame 0: at rest), or None
+        """A stepper over one run from the release (at rest), step by step or frame by frame, or None
         where the values' area gives no object that fits (see scene.dimensions)."""
         v = self.values(values)
         body = self.body_of(v["area_cm2"])
@@ -225,20 +225,29 @@ class Simulator:
         return FrameStepper(self, body, self._place(body, v), v, int(round(spf)))
 
     def run(self, n_frames: int, values: dict | None = None, fps: float | None = None,
-            on_frame: Callable[[int, np.ndarray, np.ndarray], bool] | None = None) -> Trajectory:
-        """`n_frames` frames from the release (frame 0 is t = 0): positions, velocities and
-        orientations. `on_frame(frame, position, velocity)` may return True to stop early."""
+            on_frame: Callable[[int, np.ndarray, np.ndarray], bool] | None = None,
+            start_step: int = 0) -> Trajectory:
+        """`n_frames` frames, frame f at physics step start_step + f * sim_hz / fps after the
+        release (start_step 0: frame 0 is the object at rest at the release point): positions,
+        velocities and orientations. `on_frame(frame, position, velocity)` may return True to
+        stop early."""
         if fps is not None and abs(fps - self.scene.fps) > 1e-9:
             raise GalileoError(f"the splash simulates at its camera's {self.scene.fps:g} fps, not {fps:g}")
         stepper = self.frames(values)
         if stepper is None:
             raise GalileoError("no object of this volume shows that area from below and fits the tank")
+        state = stepper.state()
+        for _ in range(int(start_step)):
+            state = stepper.step(state)
         pos = np.empty((1, n_frames, 3))
         vel = np.empty((1, n_frames, 3))
         orn = np.empty((1, n_frames, 4))
         done = n_frames
         for f in range(n_frames):
-            p, q, lin, _ = stepper.advance() if f else stepper.state()
+            if f:
+                for _ in range(stepper.spf):
+                    state = stepper.step(state)
+            p, q, lin, _ = state
             pos[0, f], orn[0, f], vel[0, f] = p, q, lin
             if on_frame is not None and on_frame(f, pos[:, f], vel[:, f]):
                 done = f + 1
@@ -309,14 +318,17 @@ class FrameStepper:
             pb.applyExternalTorque(b, -1, (tx, ty, tz), pb.WORLD_FRAME, physicsClientId=cid)
         return v_sub, frac
 
-    def step(self) -> None:
-        """One physics step with the water's forces."""
-        self.forces(*self.state())
+    def step(self, state=None):
+        """One physics step with the water's forces (computed from `state`, the state now,
+        when the caller has it); the state after it."""
+        self.forces(*(state if state is not None else self.state()))
         pb.stepSimulation(physicsClientId=self.cid)
         self.sim.steps += 1
+        return self.state()
 
     def advance(self):
         """Step to the next frame; its state."""
+        state = self.state()
         for _ in range(self.spf):
-            self.step()
-        return self.state()
+            state = self.step(state)
+        return state

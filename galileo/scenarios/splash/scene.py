@@ -25,8 +25,12 @@ equal (a = H; D = H; D = L), where the seed starts its chains.
 
 Latents (MCMC): surface area `area_cm2` ~ U(0.1, 20) cm^2, density `density_g_cm3` ~
 U(0.001, 2) g/cm^3, water drag `drag_water` ~ U(0.001, 2) (air drag = 1e-3 x water drag),
-observation start frame `start_frame` ~ U{5, ..., 30}: frame 0 of the video is frame
-`start_frame` of the simulation, which starts with the object at rest at `release_m`.
+observation start `start_step` ~ U{5, ..., 30}: frame 0 of the video is physics step
+`start_step` of the simulation (at sim_hz, 240 Hz: 0.02-0.125 s after the release), which
+starts with the object at rest at `release_m`; frame f is step start_step + f * sim_hz / fps.
+The seed's "observation start frame ... the time step at which we start matching" is read in
+physics steps: counted in video frames (0.17-1 s) it would start most videos with the
+object already under water or at rest.
 The volume is fixed from the bottom-up estimate; mass = density x volume.
 """
 from __future__ import annotations
@@ -49,6 +53,7 @@ KINDS = ("box", "vcyl", "hcyl")   # square-bottomed box, vertical cylinder, hori
 VOLUME_RANGE_CM3 = (0.01, 100.0)
 MIN_DIM_M = 0.002                 # no dimension below 2 mm
 WATER_DENSITY_KG_M3 = 1000.0
+RELEASE_ABOVE_WATER_M = 0.15   # the default scene's drop: 0.17 s (41 steps) of fall in air
 CM3 = 1e-6                        # m^3 per cm^3
 CM2 = 1e-4                        # m^2 per cm^2
 
@@ -59,7 +64,7 @@ LATENT_SPECS = {
                             limits=(0.0, math.inf), limits_open_low=True, narrow=0.05, broad=0.5),
     "drag_water": Latent("drag_water", "1", (0.001, 2.0), "drag coefficient in water (in air: 1e-3 x this)",
                          limits=(0.0, math.inf), limits_open_low=True, narrow=0.0005, broad=0.002),
-    "start_frame": Latent("start_frame", "frame", (5.0, 30.0), "simulation frame shown as the video's frame 0",
+    "start_step": Latent("start_step", "step", (5.0, 30.0), "physics step shown as the video's frame 0",
                           limits=(0.0, math.inf), narrow=1.0, broad=1.0, integer=True),
 }
 LATENT_NAMES = tuple(LATENT_SPECS)
@@ -159,7 +164,7 @@ class SplashScene:
     tank: Tank
     obj: SplashObject
     release_m: tuple[float, float, float]     # the object's centre when it is let go (at rest)
-    start_frame: int = 10                      # simulation frame shown as the video's frame 0
+    start_step: int = 10                       # physics step shown as the video's frame 0
     camera: Camera | None = None
     sim_hz: int = 240
     gravity_mps2: float = 9.81
@@ -172,18 +177,18 @@ class SplashScene:
     def latents(self) -> dict[str, float]:
         o = self.obj
         return {"area_cm2": o.area_cm2, "density_g_cm3": o.density_g_cm3, "drag_water": o.drag_water,
-                "start_frame": float(self.start_frame)}
+                "start_step": float(self.start_step)}
 
     def with_values(self, values: dict[str, float]) -> "SplashScene":
-        obj, start = self.obj, self.start_frame
+        obj, start = self.obj, self.start_step
         for name, value in values.items():
-            if name == "start_frame":
+            if name == "start_step":
                 start = int(round(value))
             elif name in ("area_cm2", "density_g_cm3", "drag_water", "volume_cm3"):
                 obj = replace(obj, **{name: float(value)})
             else:
                 raise SceneError(f"unknown name {name!r}; expected one of {', '.join(LATENT_NAMES)}, volume_cm3")
-        new = replace(self, obj=obj, start_frame=start)
+        new = replace(self, obj=obj, start_step=start)
         new.validate()
         return new
 
@@ -223,15 +228,15 @@ class SplashScene:
             raise SceneError(f"release_m: ({x:g}, {y:g}) is outside the tank's inner {2 * hx:g} x {2 * hy:g} m")
         if z <= t.water_level_m:
             raise SceneError(f"release_m: the object must be let go above the water (z > {t.water_level_m:g} m)")
-        if self.start_frame < 0:
-            raise SceneError("start_frame: must be >= 0")
+        if self.start_step < 0:
+            raise SceneError("start_step: must be >= 0")
         if self.camera is not None and self.sim_hz % self.camera.fps:
             raise SceneError(f"sim_hz ({self.sim_hz}) must be a multiple of camera.fps ({self.camera.fps})")
 
     def to_json(self) -> dict:
         d: dict[str, Any] = {"scenario": self.scenario, "version": SCENE_VERSION, "tank": self.tank.to_json(),
                              "object": self.obj.to_json(), "release_m": list(self.release_m),
-                             "start_frame": self.start_frame, "sim_hz": self.sim_hz,
+                             "start_step": self.start_step, "sim_hz": self.sim_hz,
                              "gravity_mps2": self.gravity_mps2,
                              "priors": {k: list(v) for k, v in self.bounds.items()}}
         if self.camera is not None:
@@ -297,7 +302,7 @@ def scene_from_json(data: Any) -> SplashScene:
             raise SceneError(f"priors.{e}") from None
     cam = field_value(data, "camera", "", None)
     scene = SplashScene(tank, obj, _vector3(data, "release_m", ""),
-                        number(data, "start_frame", "", 10, lo=0, hi=10_000, integer=True),
+                        number(data, "start_step", "", 10, lo=0, hi=10_000, integer=True),
                         camera_from_json(cam) if cam is not None else None,
                         number(data, "sim_hz", "", 240, lo=1, hi=10_000, integer=True),
                         number(data, "gravity_mps2", "", 9.81, lo=0, hi=100), bounds)
@@ -312,14 +317,14 @@ def default_camera(tank: Tank, fps: float = 30.0, n_frames: int = 60) -> Camera:
 
 
 def default_scene(kind: str = "box", volume_cm3: float = 27.0, density_g_cm3: float = 2.7,
-                  drag_water: float = 0.8, area_cm2: float | None = None, start_frame: int = 10,
+                  drag_water: float = 0.8, area_cm2: float | None = None, start_step: int = 10,
                   camera: Camera | None = None, material: str | None = None) -> SplashScene:
-    """A tank of water and one object let go 8 cm above the water, seen from the side."""
+    """A tank of water and one object let go 15 cm above the water, seen from the side."""
     tank = Tank()
     if area_cm2 is None:
         area_cm2 = equal_area(kind, volume_cm3 * CM3) / CM2
     obj = SplashObject("object", kind, volume_cm3, area_cm2, density_g_cm3, drag_water, material)
-    scene = SplashScene(tank, obj, (0.0, 0.0, tank.water_level_m + 0.08), start_frame,
+    scene = SplashScene(tank, obj, (0.0, 0.0, tank.water_level_m + RELEASE_ABOVE_WATER_M), start_step,
                         camera if camera is not None else default_camera(tank))
     scene.validate()
     return scene

@@ -1,0 +1,208 @@
+"""Splash tracking: pixels -> the object's positions, velocities, shape kind and volume.
+
+1. Background: MOG2 (five components, `galileo.vision.background`) learned backwards over
+   the whole video gives the tank as the video ends, with the object where it comes to
+   rest; learned forwards over the first EARLY_FRAMES frames it gives the tank before the
+   object got there. The last frame against the early background finds the object at rest;
+   there the early background replaces the late one: a background without the object.
+2. Foreground per frame against it: the object (its largest component), in air or water
+   (the water's tint is in the background too).
+3. KLT (`galileo.vision.klt`): good features inside the frame-0 silhouette, Lucas-Kanade
+   from a constant-velocity guess with a forward-backward check, features that leave the
+   foreground dropped, re-seeded inside the foreground when fewer than half survive (the
+   tint changes the object's look as it enters the water).
+4. The object's centre per frame: the centre of its silhouette's bounding box, corrected
+   by the offset between the fitted 3-D shape's projected centre and its silhouette's
+   box centre (the camera sees the top face too); where the silhouette is not usable
+   (too small or large against the fitted shape's, or missing) the KLT motion of the
+   features carries the last centre on. Back-projected onto the plane y = release_m[1]
+   (the object falls straight down) it gives positions in metres; velocities by central
+   differences (`galileo.vision.velocity`). Frames without either are `visible: false`.
+5. Bottom-up kind and volume: the silhouette in the first BOTTOM_UP_FRAMES frames fitted
+   (least 1 - IoU) by each kind at the release plane, sizes w (across) and H (high); an
+   hcyl needs a silhouette HCYL_ASPECT times wider than high and a better fit than a box; the
+   depth assumption: a box has a square bottom (depth w), a vertical cylinder is round
+   (depth w), a horizontal cylinder's depth is its diameter H. Volumes: box w^2 H,
+   vcyl pi/4 w^2 H, hcyl pi/4 H^2 w. A box and a vertical cylinder differ only in how
+   the top face's outline curves, a few pixels: the vcyl wins only when its fit is
+   better by KIND_MARGIN, else box.
+
+Note: the rendered videos open with the object falling through the air (released 12-20 cm
+above the water, shown from physics step 5-30 on), so the first silhouettes are measured in
+air. Under water the renderer draws no refraction (a real flat-walled tank magnifies what is
+under water by up to the water's index, 1.33, which this does not correct).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ...camera import backproject_to_plane
+from ...datatypes import ObjectTrack, Tracks
+from ...errors import GalileoError
+from ...shapes import Box, Cylinder
+from ...video import read_video_yuv
+from ...vision.background import (clean, dilate, foreground, largest_component, mog2_background, noise_sd,
+                                  resize_to)
+from ...vision.klt import flow, klt_window, seed_features
+from ...vision.pose import rot_y
+from ...vision.silhouette import fit_silhouette, shape_silhouette
+from ...vision.velocity import velocity_from_positions
+from .scene import CM3, KINDS
+
+EARLY_FRAMES = 8           # the early background: MOG2 over this many first frames
+END_ZONE_PX = 9            # the object's resting place, grown by this, takes the early background
+N_FEATURES = 40
+MIN_FEATURES = 4
+BOTTOM_UP_FRAMES = 3       # silhouettes fitted for kind and size
+FIT_PAD_PX = 20
+HCYL_ASPECT = 1.5          # a horizontal cylinder's silhouette is at least this much wider than high
+KIND_MARGIN = 0.01         # 1 - IoU by which a vcyl must beat a box
+AREA_OK = (0.6, 1.6)       # a silhouette is usable within these ratios of the fitted shape's area
+
+
+def _shape(kind: str, w: float, h: float):
+    """(galileo shape in its object frame, rotation object -> world) of a `kind` object w wide and h high."""
+    if kind == "box":
+        return Box((w, w, h)), np.eye(3)
+    if kind == "vcyl":
+        return Cylinder((h, w, w)), rot_y(-math.pi / 2)
+    return Cylinder((w, h, h)), np.eye(3)
+
+
+def volume_cm3(kind: str, w: float, h: float) -> float:
+    if kind == "box":
+        return w * w * h / CM3
+    if kind == "vcyl":
+        return math.pi / 4 * w * w * h / CM3
+    return math.pi / 4 * h * h * w / CM3
+
+
+def _bbox_centre(mask: np.ndarray) -> np.ndarray:
+    ys, xs = np.nonzero(mask)
+    return np.array([(xs.min() + xs.max()) / 2.0, (ys.min() + ys.max()) / 2.0])
+
+
+def _fit(cam, mask: np.ndarray, y_plane: float, kind: str):
+    """(loss, centre (x, z), w, h) of the `kind` shape whose silhouette best fits the mask."""
+    ys, xs = np.nonzero(mask)
+    pts = backproject_to_plane(cam, np.c_[xs, ys].astype(float), y_plane)
+    w0, h0 = max(float(np.ptp(pts[:, 0])), 0.004), max(float(np.ptp(pts[:, 2])), 0.004)
+    c0 = pts.mean(axis=0)
+
+    def posed(p):
+        shape, rot = _shape(kind, math.exp(p[2]), math.exp(p[3]))
+        return shape, rot, np.array([p[0], y_plane, p[1]])
+
+    res = fit_silhouette(cam, mask, posed, np.array([c0[0], c0[2], math.log(w0), math.log(h0)]), FIT_PAD_PX)
+    return float(res.fun), np.array(res.x[:2]), math.exp(res.x[2]), math.exp(res.x[3])
+
+
+def bottom_up(cam, masks: list[np.ndarray], y_plane: float) -> tuple[str, float, float]:
+    """Kind, width and height (m) from a few silhouettes (median over them)."""
+    losses = {k: [] for k in KINDS}
+    sizes = {k: [] for k in KINDS}
+    for m in masks:
+        for k in KINDS:
+            loss, _, w, h = _fit(cam, m, y_plane, k)
+            losses[k].append(loss)
+            sizes[k].append((w, h))
+    mean = {k: float(np.mean(v)) for k, v in losses.items()}
+    med = {k: np.median(np.array(v), axis=0) for k, v in sizes.items()}
+    # a lying cylinder: a wide-and-short silhouette that it fits better than a box (a cube
+    # fits both about as well: its depth is its height either way)
+    wide = med["hcyl"][0] > HCYL_ASPECT * med["hcyl"][1]
+    kind = "hcyl" if wide and mean["hcyl"] < mean["box"] else "box"
+    if kind == "box" and mean["vcyl"] < mean["box"] - KIND_MARGIN:
+        kind = "vcyl"
+    w, h = med[kind]
+    return kind, float(w), float(h)
+
+
+def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=None) -> Tracks:
+    """Track the splash scene's object in a video; see the module docstring."""
+    cam = scene.camera
+    if cam is None:
+        raise GalileoError("the scene file has no camera: tracking needs one that describes the video")
+    gray, chroma, info = read_video_yuv(video_path)
+    n = len(gray)
+    if n < 3:
+        raise GalileoError(f"video {video_path} has only {n} frames: need at least 3 to see motion")
+    if (info.width_px, info.height_px) != (cam.width_px, cam.height_px):
+        raise GalileoError(f"video {video_path} is {info.width_px}x{info.height_px} but the scene's camera is "
+                           f"{cam.width_px}x{cam.height_px}")
+    hw = gray.shape[1:]
+    yuv = np.stack([np.concatenate([g[..., None], resize_to(c, hw)], -1) for g, c in zip(gray, chroma)])
+    noise = noise_sd(yuv)
+    bg_early = mog2_background(yuv[:min(EARLY_FRAMES, n)], reverse=False)
+    bg = mog2_background(yuv, reverse=True)
+    rest = largest_component(clean(foreground(yuv[-1], bg_early, noise)) > 0)
+    if rest is not None:
+        zone = dilate(rest, END_ZONE_PX)
+        bg[zone] = bg_early[zone]
+    blobs = [largest_component(clean(foreground(f, bg, noise)) > 0) for f in yuv]
+    if sum(b is not None for b in blobs) < 2:
+        raise GalileoError(f"nothing moves in {video_path}: no object against the tank's background")
+    y_plane = float(scene.release_m[1])
+
+    # bottom-up: the first usable silhouettes
+    seen = [i for i, b in enumerate(blobs) if b is not None]
+    kind, w, h = bottom_up(cam, [blobs[i] for i in seen[:BOTTOM_UP_FRAMES]], y_plane)
+    shape, rot = _shape(kind, w, h)
+
+    def expected(uv):
+        """Silhouette area and (projected centre - silhouette box centre) of the fitted
+        shape whose centre projects to uv."""
+        c = backproject_to_plane(cam, uv[None], y_plane)[0]
+        sil = shape_silhouette(cam, shape, rot, c) > 0
+        if not sil.any():
+            return 0, np.zeros(2)
+        return int(sil.sum()), cam.project(c) - _bbox_centre(sil)
+
+    centre = np.full((n, 2), np.nan)
+    pts = np.zeros((0, 2), np.float32)
+    c_prev, v_prev = None, np.zeros(2)
+    features = []
+    for i in range(n):
+        blob = blobs[i]
+        c_klt = None
+        if i and len(pts) and c_prev is not None:
+            win = klt_window(blob) if blob is not None else 9
+            new, ok = flow(gray[i - 1], gray[i], pts, pts + v_prev.astype(np.float32), win)
+            if blob is not None:
+                inside = dilate(blob, 5)
+                ij = np.round(new).astype(int)
+                good = (ij[:, 0] >= 0) & (ij[:, 0] < hw[1]) & (ij[:, 1] >= 0) & (ij[:, 1] < hw[0])
+                ok &= good
+                ok[good] &= inside[ij[good, 1], ij[good, 0]]
+            if ok.sum() >= MIN_FEATURES:
+                c_klt = c_prev + np.median(new[ok] - pts[ok], axis=0)
+            pts = new[ok]
+        c = None
+        if blob is not None:
+            c_box = _bbox_centre(blob)
+            area, off = expected(c_box)
+            c_box = c_box + off
+            if area and AREA_OK[0] <= blob.sum() / area <= AREA_OK[1]:
+                c = c_box
+        if c is None:
+            c = c_klt
+        if c is not None:
+            if c_prev is not None:
+                v_prev = c - c_prev
+            centre[i] = c_prev = c
+        if blob is not None and len(pts) < max(MIN_FEATURES, N_FEATURES // 2):
+            pts = np.concatenate([pts, seed_features(gray[i], blob, N_FEATURES - len(pts), avoid=pts)])
+        features.append(pts.copy())
+    visible = np.all(np.isfinite(centre), axis=1)
+    pos = np.full((n, 3), np.nan)
+    pos[visible] = backproject_to_plane(cam, centre[visible], y_plane)
+    lowest = pos[visible, 2] - h / 2
+    if not np.any(lowest < scene.tank.water_level_m):
+        raise GalileoError(f"nothing enters the water in {video_path}: the object stays above the water line")
+    vel = velocity_from_positions(pos, visible, cam.fps)
+    obj = ObjectTrack(scene.obj.name, "object", pos, vel, visible, shape, None, "motion",
+                      {"kind": kind, "volume_cm3": volume_cm3(kind, w, h)}, centre, features)
+    return Tracks(cam.fps, [obj])

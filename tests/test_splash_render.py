@@ -1,0 +1,100 @@
+"""The splash renderer and dataset: determinism, the object where the truth puts it, the
+water's tint, scene files that load, truth that adds up."""
+import json
+
+import numpy as np
+import pytest
+
+from galileo.scenarios.splash.dataset import build, plan, scene_for
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("splash_demo")
+    build("demo", out, seed=0, workers=1, progress=False)
+    return out
+
+
+def _renderer(seed=0):
+    from galileo.scenarios.ramp.render import Look
+    from galileo.scenarios.splash.render import Renderer
+
+    spec = plan("demo", seed)[0]
+    scene = scene_for(spec)
+    return scene, Renderer(scene, Look.random(np.random.default_rng([spec.seed, 1])), texture_seed=spec.seed)
+
+
+def test_demo_renders_deterministically():
+    frames = []
+    for _ in range(2):
+        scene, r = _renderer()
+        imgs = []
+        traj = r.render(6, on_image=lambda f, rgb: imgs.append(rgb))
+        frames.append((np.stack(imgs), traj.position_m))
+    assert frames[0][0].shape == (6, 480, 640, 3)
+    assert np.array_equal(frames[0][0], frames[1][0])
+    assert np.array_equal(frames[0][1], frames[1][1])
+
+
+def test_object_where_truth_puts_it_and_water_tinted():
+    from galileo.scenarios.splash.physics import Simulator
+
+    scene, r = _renderer()
+    shots = {}
+    traj = r.render(20, on_image=lambda f, rgb, seg: shots.__setitem__(f, (rgb, seg)), with_segmentation=True)
+    # video frame 0 is physics step start_step (a separate, non-visual simulation)
+    sim = Simulator(scene).run(20, start_step=scene.start_step)
+    np.testing.assert_allclose(traj.position_m[0], sim.position_m[0], atol=1e-9)
+    cam = scene.camera
+    for f in (0, 3, 8, 19):       # falling through the air and the water, then on the floor
+        u, v = np.round(cam.project(traj.position_m[0, f])).astype(int)
+        rgb, seg = shots[f]
+        # the projected centre lies on the object's pixels, not at their edge (3x3 around it)
+        assert np.all(seg[v - 1:v + 2, u - 1:u + 2] == r.body_id), f
+    # the room's wall seen through the water is tinted blue-green; seen above the water, not
+    t = scene.tank
+    rgb = shots[19][0].astype(float)
+
+    def patch(z):
+        u, v = np.round(cam.project(np.array([0.1, t.size_m[1] / 2, z]))).astype(int)
+        return rgb[v - 3:v + 4, u - 3:u + 4].reshape(-1, 3).mean(axis=0)
+
+    wet, dry = patch(t.water_level_m - 0.05), patch(t.water_level_m + 0.05)
+    # Beer-Lambert over ~0.17 m of water (extinction 0.35 m): alpha ~ 0.38, so the wall
+    # (222, 220, 212) turns to about (162, 187, 194): blue exceeds red by ~30 levels
+    assert wet[2] - wet[0] > 20 and dry[2] - dry[0] < 5
+    assert dry.mean() - wet.mean() > 20
+
+
+def test_dataset_files(demo):
+    from galileo.registry import load_scene
+
+    index = json.loads((demo / "index.json").read_text())
+    assert index["scenario"] == "splash" and len(index["videos"]) == 1
+    folder = demo / "demo"
+    scene = load_scene(folder / "scene.json")
+    assert type(scene).__name__ == "SplashScene"
+    assert scene == scene_for(plan("demo", 0)[0])
+    truth = json.loads((folder / "truth.json").read_text())
+    lat = truth["latents"]
+    assert lat["mass_kg"] == pytest.approx(lat["density_g_cm3"] * lat["volume_cm3"] * 1e-3, rel=1e-12)
+    assert lat["start_step"] == scene.start_step and 5 <= lat["start_step"] <= 30
+    assert len(truth["trajectory"]["objects"][0]["position_m"]) == scene.camera.n_frames == 60
+    from galileo.video import read_video
+
+    frames, info = read_video(folder / "video.mp4")
+    assert (info.width_px, info.height_px, info.fps, info.n_frames) == (640, 480, 30.0, 60)
+
+
+def test_catalogue_inside_priors():
+    from galileo.scenarios.splash.materials import FLOATERS, MATERIALS, SINKERS, catalogue
+    from galileo.scenarios.splash.scene import LATENT_SPECS
+
+    assert len(MATERIALS) == 13 and FLOATERS and SINKERS
+    objs = catalogue(0)
+    assert len(objs) == 36
+    for o in objs:
+        assert LATENT_SPECS["density_g_cm3"].bounds[0] <= o.density_g_cm3 <= LATENT_SPECS["density_g_cm3"].bounds[1]
+        assert LATENT_SPECS["area_cm2"].bounds[0] <= o.area_cm2 <= LATENT_SPECS["area_cm2"].bounds[1]
+        assert 1.0 <= o.volume_cm3 <= 100.0 and 0.5 <= o.drag_water <= 1.2
+    assert len(plan("full", 0)) == 72 and len(plan("small", 0)) == 8

@@ -1,0 +1,55 @@
+"""Splash tracking of the rendered demo against its ground truth (truth.json)."""
+import json
+
+import numpy as np
+import pytest
+
+from galileo.errors import GalileoError
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    from galileo.scenarios.splash.dataset import build
+
+    out = tmp_path_factory.mktemp("splash_track")
+    build("demo", out, seed=0, workers=1, progress=False)
+    return out / "demo"
+
+
+def test_demo_tracks_match_truth(demo):
+    from galileo import registry
+
+    scene = registry.load_scene(demo / "scene.json")
+    tracks = registry.of(scene).track(demo / "video.mp4", scene, progress=False)
+    truth = json.loads((demo / "truth.json").read_text())
+    p_true = np.array(truth["trajectory"]["objects"][0]["position_m"])
+    v_true = np.array(truth["trajectory"]["objects"][0]["velocity_mps"])
+    (obj,) = tracks.objects
+    assert obj.role == "object" and obj.visible.all()
+    err = np.linalg.norm((obj.position_m - p_true)[:, [0, 2]], axis=1)
+    # one pixel is ~1.05 mm at the object (focal 900 px, 0.95 m away); the silhouette's box
+    # centre is good to about a pixel
+    assert np.median(err) < 2e-3 and err.max() < 4e-3
+    v_rmse = np.sqrt(np.mean(np.sum((obj.velocity_mps - v_true)[:, [0, 2]] ** 2, axis=1)))
+    # ~0.6 mm position noise differenced over 1/30 s gives ~0.015 m/s; the landing on the
+    # floor changes velocity within a frame
+    assert v_rmse < 0.05
+    bu = obj.bottom_up
+    assert bu["kind"] == truth["latents"]["kind"] == "box"
+    # a 3 cm cube is ~30 px: a pixel per side is ~3 %, ~10 % on the volume
+    assert bu["volume_cm3"] == pytest.approx(truth["latents"]["volume_cm3"], rel=0.15)
+    # the prepared scene takes the bottom-up volume
+    prepared = registry.of(scene).prepare(scene, tracks)
+    assert prepared.obj.volume_cm3 == pytest.approx(bu["volume_cm3"])
+
+
+def test_video_without_the_object_is_refused(demo, tmp_path):
+    from galileo import registry
+    from galileo.video import read_video, write_video
+
+    frames, _ = read_video(demo / "video.mp4")
+    write_video(tmp_path / "still.mp4", [frames[-1]] * 20, 30.0)   # nothing moves
+    scene = registry.load_scene(demo / "scene.json")
+    with pytest.raises(GalileoError) as e:
+        registry.of(scene).track(tmp_path / "still.mp4", scene, progress=False)
+    assert "\n" not in str(e.value)
