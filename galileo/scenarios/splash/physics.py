@@ -6,7 +6,8 @@ clears external forces after each step):
 * Buoyancy: rho_water g V_sub upwards at the centre of the submerged volume (Archimedes).
   V_sub and its centre come from the object's convex mesh cut by the plane of the water
   (exactly: by the divergence theorem with the apex on the water plane, the cap of the cut
-  contributes nothing, so only the clipped surface triangles are summed). The force acts at
+  contributes nothing, so only the clipped surface triangles are summed; compiled with
+  numba, a few microseconds a step). The force acts at
   the centre of mass and the lever arm of the centre of buoyancy is applied as a torque, so
   a floating box rights itself. The mesh volume is scaled to the object's nominal volume.
 * Drag: quadratic, F = -1/2 rho_water D A_ref |v| v, with D = drag_water below the surface
@@ -34,6 +35,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from numba import njit
 
 from ...datatypes import Trajectory
 from ...errors import GalileoError
@@ -70,7 +72,7 @@ class Body:
             return None
         shape, orn0 = body_shape(kind, dims)
         m = shape.make_mesh(MESH_SECTIONS)
-        tris = np.asarray(m.triangles, float)
+        tris = np.ascontiguousarray(m.triangles, float)
         if isinstance(shape, Box):
             half = tuple(s / 2 for s in shape.size_m)
             areas = (shape.size_m[1] * shape.size_m[2], shape.size_m[0] * shape.size_m[2],
@@ -101,37 +103,69 @@ class Body:
         return abs(r20) * hl + r * math.sqrt(max(0.0, 1.0 - r20 * r20))
 
 
+@njit(cache=True)
+def _cut_below(tris, nx, ny, nz, d):  # pragma: no cover - compiled
+    """(volume, cx, cy, cz) of the part of the closed, outward-oriented mesh `tris` (T, 3, 3)
+    where n . x < d (n a unit vector). Tetrahedra from the apex q = n d, which lies on the
+    plane, so the cap of the cut adds nothing; triangles the plane crosses are clipped."""
+    qx, qy, qz = nx * d, ny * d, nz * d
+    vol6 = 0.0
+    mx = my = mz = 0.0
+    pts = np.empty((4, 3))
+    for i in range(tris.shape[0]):
+        h = np.empty(3)
+        below = 0
+        for k in range(3):
+            h[k] = tris[i, k, 0] * nx + tris[i, k, 1] * ny + tris[i, k, 2] * nz - d
+            if h[k] < 0.0:
+                below += 1
+        if below == 0:
+            continue
+        n_pts = 3
+        if below == 3:
+            for k in range(3):
+                for j in range(3):
+                    pts[k, j] = tris[i, k, j]
+        else:
+            # a: the vertex on its own side; b, c follow it (the orientation is kept)
+            a = 0
+            for k in range(3):
+                if (h[k] < 0.0) == (below == 1):
+                    a = k
+            b, c = (a + 1) % 3, (a + 2) % 3
+            sb = h[a] / (h[a] - h[b])
+            sc = h[a] / (h[a] - h[c])
+            if below == 1:      # only a under water: (a, q_ab, q_ac)
+                for j in range(3):
+                    pts[0, j] = tris[i, a, j]
+                    pts[1, j] = tris[i, a, j] + sb * (tris[i, b, j] - tris[i, a, j])
+                    pts[2, j] = tris[i, a, j] + sc * (tris[i, c, j] - tris[i, a, j])
+            else:               # a above, b and c under: the quad (q_ab, b, c, q_ac)
+                n_pts = 4
+                for j in range(3):
+                    pts[0, j] = tris[i, a, j] + sb * (tris[i, b, j] - tris[i, a, j])
+                    pts[1, j] = tris[i, b, j]
+                    pts[2, j] = tris[i, c, j]
+                    pts[3, j] = tris[i, a, j] + sc * (tris[i, c, j] - tris[i, a, j])
+        for t in range(n_pts - 2):      # the fan (0, t + 1, t + 2)
+            x0, x1, x2 = pts[0, 0] - qx, pts[0, 1] - qy, pts[0, 2] - qz
+            y0, y1, y2 = pts[t + 1, 0] - qx, pts[t + 1, 1] - qy, pts[t + 1, 2] - qz
+            z0, z1, z2 = pts[t + 2, 0] - qx, pts[t + 2, 1] - qy, pts[t + 2, 2] - qz
+            v = x0 * (y1 * z2 - y2 * z1) + x1 * (y2 * z0 - y0 * z2) + x2 * (y0 * z1 - y1 * z0)
+            vol6 += v
+            mx += v * (x0 + y0 + z0)
+            my += v * (x1 + y1 + z1)
+            mz += v * (x2 + y2 + z2)
+    if vol6 <= 0.0:
+        return 0.0, qx, qy, qz
+    return vol6 / 6.0, qx + mx / (4.0 * vol6), qy + my / (4.0 * vol6), qz + mz / (4.0 * vol6)
+
+
 def submerged(tris: np.ndarray, level: float) -> tuple[float, np.ndarray]:
     """Volume (m^3) and centroid of the part of a closed, outward-oriented triangle mesh (world
     frame, (T, 3, 3)) below the plane z = level."""
-    apex = np.array([tris[:, :, 0].mean(), tris[:, :, 1].mean(), level])
-    p = tris - apex                           # apex on the water plane: the cap adds nothing
-    below = p[:, :, 2] < 0
-    n_below = below.sum(axis=1)
-    pieces = [p[n_below == 3]]                # wholly under water
-    for k in (1, 2):
-        sel = n_below == k
-        if not sel.any():
-            continue
-        b = below[sel]
-        # roll each triangle's vertices (orientation kept) so the one on its own side comes first
-        odd = np.argmax(b if k == 1 else ~b, axis=1)
-        idx = (odd[:, None] + np.arange(3)[None, :]) % 3
-        t = np.take_along_axis(p[sel], idx[:, :, None], axis=1)
-        a, v1, v2 = t[:, 0], t[:, 1], t[:, 2]
-        q1 = a + (a[:, 2] / (a[:, 2] - v1[:, 2]))[:, None] * (v1 - a)   # edge a-v1 meets the plane
-        q2 = a + (a[:, 2] / (a[:, 2] - v2[:, 2]))[:, None] * (v2 - a)
-        if k == 1:      # only a under water: the triangle (a, q1, q2)
-            pieces.append(np.stack([a, q1, q2], axis=1))
-        else:           # a above, v1 and v2 under: the quad (q1, v1, v2, q2)
-            pieces.append(np.stack([q1, v1, v2], axis=1))
-            pieces.append(np.stack([q1, v2, q2], axis=1))
-    t = np.concatenate(pieces)
-    vol6 = np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2]))   # 6 x signed tetrahedra
-    v6 = float(vol6.sum())
-    if v6 <= 0.0:
-        return 0.0, apex
-    return v6 / 6.0, (vol6[:, None] * t.sum(axis=1)).sum(axis=0) / (4.0 * v6) + apex
+    v, cx, cy, cz = _cut_below(np.ascontiguousarray(tris, float), 0.0, 0.0, 1.0, float(level))
+    return v, np.array([cx, cy, cz])
 
 
 class _World:
@@ -268,7 +302,6 @@ class FrameStepper:
         self.g = sc.gravity_mps2
         self.d_water = float(values["drag_water"])
         self.d_air = AIR_DRAG_RATIO * self.d_water
-        self._tris = body.tris.reshape(-1, 3)
 
     def state(self):
         """(position, orientation xyzw, linear velocity, angular velocity) now."""
@@ -286,11 +319,11 @@ class FrameStepper:
             v_sub, centre = 0.0, None
         elif z + ext <= self.level:
             v_sub, centre = geom.volume_m3, pos
-        else:
-            r = np.array(rot).reshape(3, 3)
-            world = (self._tris @ r.T + pos).reshape(-1, 3, 3)
-            v_mesh, c = submerged(world, self.level)
-            v_sub, centre = v_mesh * geom.volume_scale, c
+        else:   # cut in the object frame: the water plane is n . x < d there, n = R^T z
+            v_mesh, cx, cy, cz = _cut_below(geom.tris, rot[6], rot[7], rot[8], self.level - z)
+            v_sub = v_mesh * geom.volume_scale
+            centre = (pos[0] + rot[0] * cx + rot[1] * cy + rot[2] * cz, pos[1] + rot[3] * cx + rot[4] * cy + rot[5] * cz,
+                      pos[2] + rot[6] * cx + rot[7] * cy + rot[8] * cz)
         frac = min(1.0, v_sub / geom.volume_m3)
         fx = fy = fz = tx = ty = tz = 0.0
         if v_sub > 0.0:
