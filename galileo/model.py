@@ -64,6 +64,23 @@ class Drawing:
     ground_z_m: float | None = 0.0  # a grid at this height, if any
 
 
+class SceneFile:
+    """`save` and `load` for a scenario's scene class (which names its `scenario` and has
+    `to_json`): one JSON file, written atomically, read and checked by the scenario."""
+    scenario: str
+
+    def save(self, path: str | Path) -> None:
+        from .jsonio import write_json
+
+        write_json(path, self.to_json())
+
+    @classmethod
+    def load(cls, path: str | Path):
+        from . import registry
+
+        return registry.get(cls.scenario).load_scene(path)
+
+
 class Scenario(ABC):
     """One physical scenario. Subclasses set `name`, `description` and `noise`.
 

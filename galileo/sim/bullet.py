@@ -75,6 +75,17 @@ def cached_world(key, build: Callable[[], Any]):
     return _world
 
 
+def new_world(sim_hz: float, gravity_mps2: float, solver_iterations: int) -> int:
+    """Empty this process's client for a new world (fixed step of 1/sim_hz, no substeps,
+    deterministic pair order, `solver_iterations`, gravity along -z); the client id."""
+    cid = client()
+    pb.resetSimulation(physicsClientId=cid)
+    pb.setPhysicsEngineParameter(fixedTimeStep=1.0 / sim_hz, numSubSteps=0, deterministicOverlappingPairs=1,
+                                 numSolverIterations=solver_iterations, physicsClientId=cid)
+    pb.setGravity(0, 0, -gravity_mps2, physicsClientId=cid)
+    return cid
+
+
 def scratch_dir() -> Path:
     """This process's folder for mesh and texture files (a forked child makes its own: two
     processes writing the same file name made the renderer read half-written textures)."""

@@ -22,7 +22,7 @@ import numpy as np
 
 from ...datatypes import Trajectory
 from ...errors import GalileoError
-from ...sim.bullet import cached_world, client, collision_shape, pb, visual_shape
+from ...sim.bullet import cached_world, collision_shape, new_world, pb, visual_shape
 from .scene import Scene
 
 GROUND_SIZE_M = (8.0, 4.0, 0.1)
@@ -36,12 +36,7 @@ class _World:
 
     def __init__(self, scene: Scene, visual: bool):
         self.key = (scene.geometry_key(), visual)
-        cid = self.cid = client()
-        pb.resetSimulation(physicsClientId=cid)
-        pb.setPhysicsEngineParameter(fixedTimeStep=1.0 / scene.sim_hz, numSubSteps=0,
-                                     deterministicOverlappingPairs=1, numSolverIterations=SOLVER_ITERATIONS,
-                                     physicsClientId=cid)
-        pb.setGravity(0, 0, -scene.gravity_mps2, physicsClientId=cid)
+        cid = self.cid = new_world(scene.sim_hz, scene.gravity_mps2, SOLVER_ITERATIONS)
         gx, gy, gz = GROUND_SIZE_M
         ramp = scene.ramp
 

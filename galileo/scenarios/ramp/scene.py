@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any, ClassVar, Iterable
 
 import numpy as np
@@ -21,8 +20,8 @@ import numpy as np
 from ...camera import Camera, camera_from_json, look_at_camera
 from ...errors import SceneError
 from ...fields import field_value, number, pair
-from ...jsonio import read_json, write_json
 from ...latents import Latent, check_bounds
+from ...model import SceneFile
 from ...shapes import SHAPE_TYPES, Shape, shape_class
 
 SCENE_VERSION = 1
@@ -156,7 +155,7 @@ class SceneObject:
 
 
 @dataclass(frozen=True)
-class Scene:
+class Scene(SceneFile):
     scenario: ClassVar[str] = "ramp"
     ramp: Ramp
     objects: tuple[SceneObject, ...]
@@ -260,16 +259,6 @@ class Scene:
             d["camera"] = self.camera.to_json()
         return d
 
-    def save(self, path: str | Path) -> None:
-        write_json(path, self.to_json())
-
-    @classmethod
-    def load(cls, path: str | Path) -> "Scene":
-        data = read_json(path, "scene file")
-        try:
-            return scene_from_json(data)
-        except SceneError as e:
-            raise SceneError(f"{path}: {e}") from None
 
 
 # -- parsing with field-named errors ---------------------------------------------------

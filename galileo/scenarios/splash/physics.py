@@ -40,7 +40,7 @@ from numba import njit
 from ...datatypes import Trajectory
 from ...errors import GalileoError
 from ...shapes import Box
-from ...sim.bullet import cached_world, client, collision_shape, pb, visual_shape
+from ...sim.bullet import cached_world, collision_shape, new_world, pb, visual_shape
 from .scene import CM2, SplashScene, body_shape, dimensions
 
 AIR_DRAG_RATIO = 1e-3        # D_a = 1e-3 D_w (the seed: the density ratio of air to water)
@@ -173,12 +173,7 @@ class _World:
 
     def __init__(self, scene: SplashScene, visual: bool):
         self.key = (scene.geometry_key(), visual)
-        cid = self.cid = client()
-        pb.resetSimulation(physicsClientId=cid)
-        pb.setPhysicsEngineParameter(fixedTimeStep=1.0 / scene.sim_hz, numSubSteps=0,
-                                     deterministicOverlappingPairs=1, numSolverIterations=SOLVER_ITERATIONS,
-                                     physicsClientId=cid)
-        pb.setGravity(0, 0, -scene.gravity_mps2, physicsClientId=cid)
+        cid = self.cid = new_world(scene.sim_hz, scene.gravity_mps2, SOLVER_ITERATIONS)
         t = scene.tank
         (sx, sy, sz), w = t.size_m, t.wall_m
         self.statics = []

@@ -175,28 +175,20 @@ class Renderer:
         """Simulate from the release and render `n_frames` video frames, video frame 0 being
         physics step start_step; on_image(frame, rgb[, seg]) for each. Returns the trajectory
         of the shown frames."""
-        sc = self.scene
-        start = int(round((values or {}).get("start_step", sc.start_step)))
-        stepper = self.sim.frames(values)
-        if stepper is None:
-            raise ValueError("no object of this volume shows that area from below and fits the tank")
-        self.body_id = self.sim.world.body
-        pb.changeVisualShape(self.body_id, -1, rgbaColor=[1, 1, 1, 1], textureUniqueId=self.texture,
-                             physicsClientId=self.sim.world.cid)
-        pos, vel, orn = (np.empty((1, n_frames, k)) for k in (3, 3, 4))
-        state = stepper.state()
-        for _ in range(start):
-            state = stepper.step(state)
-        for i in range(n_frames):
-            if i:
-                for _ in range(stepper.spf):
-                    state = stepper.step(state)
-            p, q, lin, _ = state
-            pos[0, i], vel[0, i], orn[0, i] = p, lin, q
+        start = int(round((values or {}).get("start_step", self.scene.start_step)))
+        cid = self.sim.world.cid
+
+        def on_frame(i, pos, vel):
+            if i == 0:   # the object's body is made for the run: texture it before the first frame
+                self.body_id = self.sim.world.body
+                pb.changeVisualShape(self.body_id, -1, rgbaColor=[1, 1, 1, 1], textureUniqueId=self.texture,
+                                     physicsClientId=cid)
             out = self.render_current(i, with_segmentation)
             if on_image is not None:
                 on_image(i, *out) if with_segmentation else on_image(i, out)
-        return Trajectory(sc.fps, [sc.obj.name], pos, vel, orn)
+            return False
+
+        return self.sim.run(n_frames, values, on_frame=on_frame, start_step=start)
 
 
 def render_to_video(scene: SplashScene, path: str | Path, n_frames: int, look: Look | None = None,

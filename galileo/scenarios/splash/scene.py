@@ -37,15 +37,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any, ClassVar
 
 
 from ...camera import Camera, camera_from_json, look_at_camera
 from ...errors import SceneError
 from ...fields import field_value, number, pair
-from ...jsonio import read_json, write_json
 from ...latents import Latent, check_bounds
+from ...model import SceneFile
 from ...shapes import Box, Cylinder, Shape
 
 SCENE_VERSION = 1
@@ -159,7 +158,7 @@ DEFAULT_BOUNDS = {n: lat.bounds for n, lat in LATENT_SPECS.items()}
 
 
 @dataclass(frozen=True)
-class SplashScene:
+class SplashScene(SceneFile):
     scenario: ClassVar[str] = "splash"
     tank: Tank
     obj: SplashObject
@@ -243,15 +242,6 @@ class SplashScene:
             d["camera"] = self.camera.to_json()
         return d
 
-    def save(self, path: str | Path) -> None:
-        write_json(path, self.to_json())
-
-    @classmethod
-    def load(cls, path: str | Path) -> "SplashScene":
-        try:
-            return scene_from_json(read_json(path, "scene file"))
-        except SceneError as e:
-            raise SceneError(f"{path}: {e}") from None
 
 
 def _vector3(d: dict, key: str, path: str) -> tuple[float, float, float]:
