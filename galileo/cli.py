@@ -135,10 +135,26 @@ def cmd_predict(args: argparse.Namespace) -> int:
 def cmd_experiment(args: argparse.Namespace) -> int:
     import json
 
+    from .jsonio import read_json
     from .runner import RunConfig
-    from .scenarios.ramp.experiments import run_experiments
 
-    cfg = RunConfig(chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=args.workers)
+    index_path = Path(args.dataset) / "index.json"
+    if not index_path.exists():
+        raise GalileoError(f"{args.dataset} is not a dataset folder (no index.json; make one with `galileo dataset`)")
+    index = read_json(index_path, "dataset index")
+    scenario = index.get("scenario", "ramp") if isinstance(index, dict) else None
+    if scenario == "splash":
+        from .scenarios.splash.experiments import PROTOCOL as protocol, run_experiments
+    elif scenario == "ramp":
+        from .scenarios.ramp.experiments import run_experiments
+        protocol = {"chains": RunConfig().chains, "sweeps": RunConfig().sweeps}   # the paper's 16 x 75
+    elif not isinstance(index, dict):
+        raise GalileoError(f"{index_path}: expected a JSON object with the dataset's videos")
+    else:
+        raise GalileoError(f"{index_path}: no experiments for scenario {scenario!r}; expected ramp or splash")
+    cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
+                    sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps,
+                    seed=args.seed, workers=args.workers)
     cfg.check()
     report = run_experiments(args.dataset, cfg, progress=not args.quiet, out=args.out)
     summary = dict(report["summary"])
@@ -232,10 +248,12 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--out", help="also write the answers to this JSON file")
     q.set_defaults(func=cmd_predict)
 
-    e = sub.add_parser("experiment", help="the paper's experiments over a rendered dataset")
-    e.add_argument("dataset", help="folder written by `galileo dataset`")
-    e.add_argument("--chains", type=int, default=16)
-    e.add_argument("--sweeps", type=int, default=75)
+    e = sub.add_parser("experiment", help="the paper's experiments over a rendered dataset (ramp: Galileo "
+                       "section 6; splash: mass correlation and which is heavier)")
+    e.add_argument("dataset", help="folder written by `galileo dataset` (its index.json names the scenario)")
+    e.add_argument("--chains", type=int, default=None,
+                   help="chains per video (default: the scenario's protocol, ramp 16, splash 50)")
+    e.add_argument("--sweeps", type=int, default=None, help="sweeps per chain (default: 75)")
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--workers", type=int, default=None)
     e.add_argument("--out", required=True, help="report JSON (rewritten after every video)")

@@ -15,7 +15,7 @@ import numpy as np
 from ...errors import GalileoError
 from ...latents import Noise
 from ...model import Drawing, Mesh, Scenario
-from .scene import CM2, CM3, KINDS, equal_area
+from .scene import CM2, CM3, KINDS, VOLUME_RANGE_CM3, equal_area
 
 WATER_COLOR = (90, 150, 230)
 GLASS_COLOR = (200, 220, 235)
@@ -59,7 +59,8 @@ class SplashScenario(Scenario):
 
     def prepare(self, scene, tracks):
         """The scene with the bottom-up shape kind and volume from the tracks (when they carry
-        them); checks that the tracks hold one object at the camera's frame rate."""
+        them; a volume estimated past the prior's 0.01-100 cm^3 is clipped into it, where a
+        scene file's is refused); checks that the tracks hold one object at the camera's rate."""
         if len(tracks.objects) != 1:
             raise GalileoError(f"splash tracks hold one object, got {len(tracks.objects)}")
         if scene.camera is None:
@@ -72,8 +73,9 @@ class SplashScenario(Scenario):
             if found["kind"] not in KINDS:
                 raise GalileoError(f"tracks: bottom_up.kind must be one of {', '.join(KINDS)}, got {found['kind']!r}")
             obj = dataclasses.replace(obj, kind=found["kind"])
-        if "volume_cm3" in found:
-            obj = dataclasses.replace(obj, volume_cm3=float(found["volume_cm3"]))
+        if "volume_cm3" in found:   # a bottom-up estimate past the prior's range is clipped into it
+            lo, hi = VOLUME_RANGE_CM3
+            obj = dataclasses.replace(obj, volume_cm3=float(np.clip(float(found["volume_cm3"]), lo, hi)))
         if obj is scene.obj:
             return scene
         new = dataclasses.replace(scene, obj=dataclasses.replace(
