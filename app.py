@@ -1,6 +1,7 @@
 """Galileo app: watch and steer physical inference from video in the browser.
 
     python app.py                                  # the built-in demo (rendered and cached on first run)
+    python app.py --scenario splash                # the splash demo: an object dropped into a tank of water
     python app.py --video V.mp4 --scene S.json     # your own video and its scene/camera file
     python app.py --session sessions/<name>        # reopen a recorded session (scrub it; resume its chains)
 
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import signal
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
@@ -21,13 +23,32 @@ DEMO_DIR = ROOT / ".cache" / "demo"
 SESSIONS = ROOT / "sessions"
 
 
-def ensure_demo(progress: bool = True) -> Path:
-    """Render the demo video on first run and cache it (with its tracks) under .cache/demo/."""
-    from galileo.scenarios.ramp.dataset import build
+@dataclass(frozen=True)
+class Demo:
+    """A built-in demo: the scenario whose dataset renders it, where it is cached, the
+    session name and how many chains it runs by default."""
+    scenario: str
+    cache: Path
+    name: str
+    chains: int
 
-    folder = DEMO_DIR / "demo"
+
+DEMOS = {
+    "ramp": Demo("ramp", DEMO_DIR, "demo", 16),
+    "splash": Demo("splash", ROOT / ".cache" / "demo-splash", "splash-demo", 50),   # the seed's 50 chains
+}
+
+
+def ensure_demo(progress: bool = True, scenario: str = "ramp") -> Path:
+    """Render a built-in demo video on first run and cache it (with its scene) under its
+    cache folder (.cache/demo/ for the ramp, .cache/demo-splash/ for the splash)."""
+    import importlib
+
+    demo = DEMOS[scenario]
+    build = importlib.import_module(f"galileo.scenarios.{demo.scenario}.dataset").build
+    folder = demo.cache / "demo"
     if not (folder / "video.mp4").exists() or not (folder / "scene.json").exists():
-        build("demo", DEMO_DIR, seed=0, workers=1, progress=progress)
+        build("demo", demo.cache, seed=0, workers=1, progress=progress)
     return folder
 
 
@@ -36,17 +57,23 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--video", help="video file (with --scene); default: the built-in demo")
     p.add_argument("--scene", help="scene JSON whose camera describes the video")
     p.add_argument("--session", help="reopen a recorded session folder")
+    p.add_argument("--scenario", choices=sorted(DEMOS), default="ramp",
+                   help="which built-in demo to run without --video/--scene (default ramp)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=8080)
     p.add_argument("--rerun", nargs="+", default=["save"], metavar="MODE",
                    help="off | save (session.rrd in the session folder) | web (also serve rerun's web viewer) "
                         "| connect URL")
-    p.add_argument("--chains", type=int, default=16)
+    p.add_argument("--chains", type=int, default=None,
+                   help="chains to start (default: the demo's, ramp 16, splash 50)")
     p.add_argument("--sweeps", type=int, default=75, help="sweeps per chain before it pauses (resume to go on)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
-    p.add_argument("--name", help="session name (default: the video's name)")
-    return p.parse_args(argv)
+    p.add_argument("--name", help="session name (default: the video's name; demo / splash-demo)")
+    args = p.parse_args(argv)
+    if args.chains is None:
+        args.chains = DEMOS[args.scenario].chains
+    return args
 
 
 def _rerun_mode(args) -> tuple[str, str | None]:
@@ -95,9 +122,9 @@ def run(args) -> int:
             video_path, scene_path = Path(args.video), Path(args.scene)
             name = args.name or video_path.stem
         else:
-            folder = ensure_demo()
+            folder = ensure_demo(scenario=args.scenario)
             video_path, scene_path = folder / "video.mp4", folder / "scene.json"
-            name = args.name or "demo"
+            name = args.name or DEMOS[args.scenario].name
         scene = registry.load_scene(scene_path)
         print(f"tracking {video_path} ...")
         tracks = registry.of(scene).track(video_path, scene)

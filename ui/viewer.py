@@ -37,6 +37,8 @@ from galileo.camera import Camera
 from galileo.datatypes import Tracks
 
 OBJECT_COLORS = [(220, 90, 50), (70, 130, 220)]
+NOT_EDITS = ("init", "pause", "resume")
+SMALL_SCENE_M = 0.5    # scenes smaller than this get an initial view close enough to see them
 CHAIN_COLORS = ["#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#bfef45",
                 "#469990", "#9a6324", "#800000", "#808000", "#000075", "#a9a9a9", "#e6beff", "#fabebe"]
 
@@ -69,6 +71,16 @@ def _segments(points: np.ndarray) -> np.ndarray:
     return np.stack([pts[:-1], pts[1:]], axis=1)
 
 
+def _per_latent(width, k: int) -> tuple[float, ...]:
+    """Proposal widths (a number, or one per latent) as one per latent."""
+    return tuple(float(w) for w in width) if isinstance(width, tuple) else (float(width),) * k
+
+
+def _step(width: float) -> float:
+    """An input step that shows a proposal width to its first digit (0.0005 -> 0.0001)."""
+    return float(10.0 ** np.floor(np.log10(width))) if width > 0 else 0.001
+
+
 @dataclass
 class Selection:
     chain: int
@@ -97,16 +109,27 @@ class Viewer:
         self._dirty = threading.Event()
         self._stop = threading.Event()
         self.camera_view = False
+        st = controller.settings
+        narrow = _per_latent(st.narrow, len(controller.names))
+        # decimals a latent is shown with: integers none, others down to their narrow width's first digit (3 at least)
+        self._integer = {j for j, lat in enumerate(controller.latents) if lat.integer}
+        self._decimals = {n: 0 if j in self._integer else max(3, int(np.ceil(-np.log10(narrow[j]))))
+                          for j, n in enumerate(controller.names)}
+        self._y_axis_px = 0
+        self._legend = True
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.url = f"http://{host}:{self.server.get_port()}"
         self._build_scene()
         self._build_gui()
         self.select_sample(*self._first_selection())
+        if self.ctrl.map() is not None:   # a reopened session: the chain and sample inputs show the MAP too
+            self.jump_to_map()
         self._threads = [threading.Thread(target=self._refresh_loop, daemon=True),
                          threading.Thread(target=self._play_loop, daemon=True)]
+        controller.add_listener(self._on_controller)
+        self._dirty.set()   # plots and status at once (a reopened session's paused chains send nothing)
         for t in self._threads:
             t.start()
-        controller.add_listener(self._on_controller)
 
     # -- 3-D scene -------------------------------------------------------------------------
     def _build_scene(self) -> None:
@@ -130,6 +153,39 @@ class Viewer:
                                                 image=self.video[0], format="jpeg", jpeg_quality=80,
                                                 wxyz=wxyz, position=pos)
         self.sim_lines = []
+        self._frame_small_scene(drawing)
+        self.server.on_client_connect(self._on_connect)
+
+    def _frame_small_scene(self, drawing) -> None:
+        """Viser's default view (from (3, 3, 3) m, 75 degrees wide) suits scenes a metre or so
+        across; a smaller one (the splash tank, 0.4 m) would be a speck in it, so new browsers
+        start on the video camera's side of the scene, nearer than the camera (its frustum
+        behind), turned 40 degrees and raised (a view the camera view does not give), looking
+        at the scene's centre."""
+        pts = [m.vertices for m in drawing.static] + [o.position_m[np.isfinite(o.position_m).all(axis=1)]
+                                                      for o in self.tracks.objects]
+        pts = [p for p in pts if len(p)]
+        if not pts:
+            return
+        pts = np.concatenate(pts)
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        size = float(np.max(hi - lo))
+        if not 0 < size < SMALL_SCENE_M:
+            return
+        centre = (lo + hi) / 2
+        back = (np.array([0.8, -1.4, 0.0]) * size if self.camera is None
+                else 0.6 * (camera_pose(self.camera)[1] - centre))
+        a = np.deg2rad(40.0)
+        rot = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        self.server.initial_camera.fov = np.deg2rad(60.0)
+        self.server.initial_camera.look_at = centre
+        self.server.initial_camera.position = centre + rot @ back + np.array([0.0, 0.0, 0.9 * size])
+
+    def _on_connect(self, client) -> None:
+        """A browser that joins while the camera view is on (the background is the scene's, for
+        every browser) gets the camera view too, not the video behind a free view."""
+        if self.camera_view:
+            self.snap_camera(client)
 
     def _update_sim_lines(self) -> None:
         for h in self.sim_lines:
@@ -164,16 +220,31 @@ class Viewer:
                                                                                    fill="#4363d855")),
                                               title=f"posterior {n}", aspect=2.5,
                                               scales={"x": uplot.Scale(time=False)}) for n in ctrl.names}
+        specs = {lat.name: lat for lat in ctrl.latents}
         with g.add_folder("Priors and settings", expand_by_default=False):
             st = ctrl.settings
             self.bound_inputs = {}
             for n in ctrl.names:
                 lo, hi = st.bounds[n]
-                self.bound_inputs[n] = g.add_vector2(f"{n} bounds", (lo, hi), step=0.001)
+                lat = specs[n]
+                self.bound_inputs[n] = g.add_vector2(f"{n} bounds", (lo, hi), step=1 if lat.integer else 0.001,
+                                                     hint=f"uniform prior (low, high) in {lat.unit}: {lat.doc}")
             noise = ctrl.scenario.noise
-            self.sigma_input = g.add_number(f"{noise.name} ({noise.unit})", st.noise, min=1e-4, step=0.001)
-            self.narrow_input = g.add_number("narrow width", st.narrow, min=1e-4, step=0.001)
-            self.broad_input = g.add_number("broad width", st.broad, min=1e-4, step=0.01)
+            self.sigma_input = g.add_number(f"{noise.name} ({noise.unit})", st.noise, min=1e-4, step=0.001,
+                                            hint=noise.doc or None)
+            if isinstance(st.narrow, tuple) or isinstance(st.broad, tuple):
+                # one (narrow, broad) pair per latent, in its own unit
+                self.narrow_input = self.broad_input = None
+                narrow, broad = _per_latent(st.narrow, len(ctrl.names)), _per_latent(st.broad, len(ctrl.names))
+                self.width_inputs = {
+                    n: g.add_vector2(f"{n} widths", (narrow[j], broad[j]), min=(1e-6, 1e-6),
+                                     step=_step(min(narrow[j], broad[j])),
+                                     hint=f"proposal half-widths (narrow, broad) in {specs[n].unit}")
+                    for j, n in enumerate(ctrl.names)}
+            else:
+                self.width_inputs = {}
+                self.narrow_input = g.add_number("narrow width", st.narrow, min=1e-4, step=0.001)
+                self.broad_input = g.add_number("broad width", st.broad, min=1e-4, step=0.01)
             self.every_input = g.add_number("broad every", st.broad_every, min=0, step=1)
             self.apply_button = g.add_button("Apply")
         with g.add_folder("Steering", expand_by_default=False):
@@ -185,7 +256,9 @@ class Viewer:
             self.remove_button = g.add_button("Remove chain")
             self.reset_map = g.add_button("Reset chain to MAP")
             self.reset_sel = g.add_button("Reset chain to selected sample")
-            self.set_inputs = {n: g.add_number(n, 0.1, step=0.001) for n in ctrl.names}
+            start = self._start_values()
+            self.set_inputs = {n: g.add_number(n, start[n], step=1 if specs[n].integer else 0.001,
+                                               hint=f"{specs[n].unit}: {specs[n].doc}") for n in ctrl.names}
             self.set_button = g.add_button("Set chain's latents")
         self._wire()
 
@@ -209,31 +282,65 @@ class Viewer:
                         ctrl.set_bounds(n, lo, hi)
                 if float(self.sigma_input.value) != ctrl.settings.noise:
                     ctrl.set_noise(float(self.sigma_input.value))
-                widths = (float(self.narrow_input.value), float(self.broad_input.value), int(self.every_input.value))
                 st = ctrl.settings
-                if widths != (st.narrow, st.broad, st.broad_every):
+                if self.width_inputs:
+                    pairs = [tuple(float(v) for v in h.value) for h in self.width_inputs.values()]
+                    widths = (tuple(p[0] for p in pairs), tuple(p[1] for p in pairs), int(self.every_input.value))
+                    k = len(ctrl.names)
+                    current = (_per_latent(st.narrow, k), _per_latent(st.broad, k), st.broad_every)
+                else:
+                    widths = (float(self.narrow_input.value), float(self.broad_input.value),
+                              int(self.every_input.value))
+                    current = (st.narrow, st.broad, st.broad_every)
+                if widths != current:
                     ctrl.set_widths(*widths)
             except ValueError as e:
                 self._notify(str(e))
 
         self.apply_button.on_click(apply)
-        self.pause_all.on_click(lambda _: ctrl.pause())
-        self.resume_all.on_click(lambda _: ctrl.resume())
-        self.pause_one.on_click(lambda _: ctrl.pause(self._chain()))
-        self.resume_one.on_click(lambda _: ctrl.resume(self._chain()))
-        self.add_button.on_click(lambda _: ctrl.add_chains(1))
-        self.remove_button.on_click(lambda _: ctrl.remove_chain(self._chain()))
-        self.reset_map.on_click(lambda _: ctrl.reset_chain(self._chain(), "map"))
-        self.reset_sel.on_click(lambda _: ctrl.reset_chain(self._chain(), "sample",
-                                                           (self.selection.chain, self.selection.index)))
-        self.set_button.on_click(lambda _: ctrl.set_chain(
-            self._chain(), {n: float(h.value) for n, h in self.set_inputs.items()}))
+
+        def steer(fn):
+            """A steering call from a button: its ValueError (e.g. a value outside the prior)
+            shown to the user, not lost in the server's log."""
+            def call(_):
+                try:
+                    fn()
+                except ValueError as e:
+                    self._notify(str(e))
+            return call
+
+        self.pause_all.on_click(steer(lambda: ctrl.pause()))
+        self.resume_all.on_click(steer(lambda: ctrl.resume()))
+        self.pause_one.on_click(steer(lambda: ctrl.pause(self._chain())))
+        self.resume_one.on_click(steer(lambda: ctrl.resume(self._chain())))
+        self.add_button.on_click(steer(lambda: ctrl.add_chains(1)))
+        self.remove_button.on_click(steer(lambda: ctrl.remove_chain(self._chain())))
+        self.reset_map.on_click(steer(lambda: ctrl.reset_chain(self._chain(), "map")))
+        self.reset_sel.on_click(steer(lambda: ctrl.reset_chain(self._chain(), "sample",
+                                                               (self.selection.chain, self.selection.index))))
+        self.set_button.on_click(steer(lambda: ctrl.set_chain(
+            self._chain(), {n: float(h.value) for n, h in self.set_inputs.items()})))
 
     def _notify(self, text: str) -> None:
         for client in self.server.get_clients().values():
             client.add_notification("Galileo", text, color="red", auto_close_seconds=5.0)
 
     # -- actions --------------------------------------------------------------------------------
+    def _fmt(self, name: str, value: float) -> str:
+        return f"{value:.{self._decimals.get(name, 3)}f}"
+
+    def _start_values(self) -> dict[str, float]:
+        """Where the first chain stands now (the priors' middle without one): the "set chain's
+        latents" inputs start there, inside the bounds."""
+        ids = self.ctrl.chain_ids()
+        if ids:
+            try:
+                return self.ctrl.position(ids[0])
+            except ValueError:   # created after the round in flight
+                pass
+        mid = self.ctrl.settings.bounds_array(self.ctrl.names).mean(axis=1)
+        return {n: float(v) for n, v in zip(self.ctrl.names, mid)}
+
     def _first_selection(self) -> tuple[int, int]:
         m = self.ctrl.map()
         if m is not None:
@@ -270,7 +377,7 @@ class Viewer:
             self._update_sim_lines()
             ll = self.ctrl.logliks(chain)[index] if len(samples) else float("nan")
             self.sample_text.content = (f"chain {chain}, sample {index}: " + ", ".join(
-                f"{k} = {v:.3f}" for k, v in (values or {}).items()) + f"; log-lik {ll:.1f}")
+                f"{k} = {self._fmt(k, v)}" for k, v in (values or {}).items()) + f"; log-lik {ll:.1f}")
             self.last_resim_s = time.perf_counter() - t0
         return self.last_resim_s
 
@@ -367,7 +474,7 @@ class Viewer:
         rh = ", ".join(f"{k} {v:.2f}" for k, v in (st.get("r_hat") or {}).items() if v is not None)
         m = st["map"]
         map_txt = "" if m is None else (f"MAP (chain {m['chain']}, sample {m['index']}): " +
-                                        ", ".join(f"{k} = {v:.3f}" for k, v in m["values"].items()) +
+                                        ", ".join(f"{k} = {self._fmt(k, v)}" for k, v in m["values"].items()) +
                                         f", log-lik {m['loglik']:.1f}")
         running = sum(1 for c in st["chains"].values() if c.get("running"))
         self.status_text.content = (f"{running} running / {len(ids)} chains, {st.get('sweeps', 0)} sweeps  \n"
@@ -388,7 +495,10 @@ class Viewer:
             uplot.Series(label=f"chain {c}", stroke=CHAIN_COLORS[c % len(CHAIN_COLORS)], width=1) for c in ids]
         data = [x, *ys]
         # edits (priors, sigma, widths, steering) as spikes from the bottom at the sweep they took effect
-        edits = sorted({e["sweep"] for e in ctrl.events if e["kind"] != "init" and 1 <= e["sweep"] <= length})
+        # (pausing and resuming change no chain's target or state: not edits; the app pauses every
+        # chain at its target sweeps, which would otherwise mark a spike there)
+        edits = sorted({e["sweep"] for e in ctrl.events
+                        if e["kind"] not in NOT_EDITS and 1 <= e["sweep"] <= length})
         if edits:
             stack = np.stack(ys)
             marks = np.full(length, float(stack.min()))
@@ -396,6 +506,15 @@ class Viewer:
                 marks[sw - 1] = float(stack[:, sw - 1].max())
             series.append(uplot.Series(label="edit", stroke="#000", width=1))
             data.append(marks)
+        # the y axis wide enough for its labels (a splash chain starts near -1e6)
+        width = 8 * len(f"{-max(abs(float(np.min(ys))), abs(float(np.max(ys)))):,.0f}") + 20
+        if width != self._y_axis_px:
+            self._y_axis_px = width
+            self.trace_plot.axes = (uplot.Axis(), uplot.Axis(size=width))
+        legend = len(ids) <= len(CHAIN_COLORS)   # more chains (the splash's 50) than colours: a legend taller than the plot
+        if legend != self._legend:
+            self._legend = legend
+            self.trace_plot.legend = uplot.Legend(show=legend)
         self.trace_plot.series = tuple(series)
         self.trace_plot.data = tuple(data)
         self.trace_plot.title = "log-likelihood per chain" + (f" (edits at sweeps {edits})" if edits else "")
@@ -406,6 +525,11 @@ class Viewer:
         bounds = ctrl.settings.bounds
         for j, n in enumerate(ctrl.names):
             lo, hi = bounds[n]
+            if j in self._integer:   # one bin per integer, at the integer (30 bins over 5..30 leave gaps)
+                ks = np.arange(np.ceil(lo), np.floor(hi) + 1)
+                counts, _ = np.histogram(kept[:, j], bins=np.append(ks - 0.5, ks[-1] + 0.5)) if len(ks) else ([], [])
+                self.hist_plots[n].data = (ks.astype(float), np.asarray(counts, float))
+                continue
             counts, edges = np.histogram(kept[:, j], bins=30, range=(lo, hi))
             self.hist_plots[n].data = (edges[:-1].astype(float), counts.astype(float))
 
