@@ -26,16 +26,15 @@ SESSIONS = ROOT / "sessions"
 @dataclass(frozen=True)
 class Demo:
     """A built-in demo: the scenario whose dataset renders it, where it is cached, the
-    session name and how many chains it runs by default."""
+    session name (it runs its scenario's protocol's chains by default)."""
     scenario: str
     cache: Path
     name: str
-    chains: int
 
 
 DEMOS = {
-    "ramp": Demo("ramp", DEMO_DIR, "demo", 16),
-    "splash": Demo("splash", ROOT / ".cache" / "demo-splash", "splash-demo", 50),   # the seed's 50 chains
+    "ramp": Demo("ramp", DEMO_DIR, "demo"),
+    "splash": Demo("splash", ROOT / ".cache" / "demo-splash", "splash-demo"),
 }
 
 
@@ -72,7 +71,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--name", help="session name (default: the video's name; demo / splash-demo)")
     args = p.parse_args(argv)
     if args.chains is None:
-        args.chains = DEMOS[args.scenario].chains
+        from galileo import registry
+
+        args.chains = registry.get(args.scenario).protocol["chains"]
     return args
 
 

@@ -91,16 +91,18 @@ def cmd_infer(args: argparse.Namespace) -> int:
     from .datatypes import Tracks
     from .runner import RunConfig, infer
 
-    if args.chains < 1 or args.sweeps < 1:  # before tracking, which takes a while
-        raise GalileoError("--chains and --sweeps must be at least 1")
+    if (args.chains is not None and args.chains < 1) or (args.sweeps is not None and args.sweeps < 1):
+        raise GalileoError("--chains and --sweeps must be at least 1")   # before tracking, which takes a while
     if args.sigma is not None and not args.sigma > 0:
         raise GalileoError("--sigma must be positive")
-    cfg = RunConfig(chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=args.workers,
-                    noise=args.sigma, speedups=not args.no_speedups, narrow=args.narrow, broad=args.broad,
-                    broad_every=args.broad_every)
-    cfg.check()
     scene = registry.load_scene(args.scene)
     scenario = registry.of(scene)
+    protocol = scenario.protocol
+    cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
+                    sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps, seed=args.seed,
+                    workers=args.workers, noise=args.sigma, speedups=not args.no_speedups, narrow=args.narrow,
+                    broad=args.broad, broad_every=args.broad_every)
+    cfg.check()
     try:
         cfg.settings(scenario.latents(scene), scenario.noise)
     except ValueError as e:
@@ -135,6 +137,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
 def cmd_experiment(args: argparse.Namespace) -> int:
     import json
 
+    from . import registry
     from .jsonio import read_json
     from .runner import RunConfig
 
@@ -144,14 +147,14 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     index = read_json(index_path, "dataset index")
     scenario = index.get("scenario", "ramp") if isinstance(index, dict) else None
     if scenario == "splash":
-        from .scenarios.splash.experiments import PROTOCOL as protocol, run_experiments
+        from .scenarios.splash.experiments import run_experiments
     elif scenario == "ramp":
         from .scenarios.ramp.experiments import run_experiments
-        protocol = {"chains": RunConfig().chains, "sweeps": RunConfig().sweeps}   # the paper's 16 x 75
     elif not isinstance(index, dict):
         raise GalileoError(f"{index_path}: expected a JSON object with the dataset's videos")
     else:
         raise GalileoError(f"{index_path}: no experiments for scenario {scenario!r}; expected ramp or splash")
+    protocol = registry.get(scenario).protocol
     cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
                     sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps,
                     seed=args.seed, workers=args.workers)
@@ -226,8 +229,9 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("video", help="video file")
     i.add_argument("--scene", required=True, help="scene JSON describing the video (for the ramp: its camera)")
     i.add_argument("--tracks", help="tracks JSON from `galileo track` (default: track the video first)")
-    i.add_argument("--chains", type=int, default=16)
-    i.add_argument("--sweeps", type=int, default=75)
+    i.add_argument("--chains", type=int, default=None, help="chains (default: the scenario's protocol, ramp 16, "
+                   "splash 50)")
+    i.add_argument("--sweeps", type=int, default=None, help="sweeps per chain (default: 75)")
     i.add_argument("--seed", type=int, default=0)
     i.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
     i.add_argument("--sigma", type=float, default=None,

@@ -90,6 +90,7 @@ class Scenario(ABC):
     name: str = ""
     description: str = ""
     noise: Noise
+    protocol: dict = {"chains": 16, "sweeps": 75}   # the paper's chains x sweeps per video (the defaults)
 
     # -- scene -----------------------------------------------------------------------------
     @abstractmethod

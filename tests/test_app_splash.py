@@ -18,8 +18,7 @@ def splash_viewer(tmp_path_factory):
 
     demo = app.DEMOS["splash"]
     with pytest.MonkeyPatch.context() as mp:   # render into a temporary cache, as the app would
-        mp.setitem(app.DEMOS, "splash", app.Demo(demo.scenario, tmp_path_factory.mktemp("cache"), demo.name,
-                                                 demo.chains))
+        mp.setitem(app.DEMOS, "splash", app.Demo(demo.scenario, tmp_path_factory.mktemp("cache"), demo.name))
         folder = app.ensure_demo(progress=False, scenario="splash")
     scene = registry.load_scene(folder / "scene.json")
     assert registry.of(scene).name == "splash"

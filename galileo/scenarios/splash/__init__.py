@@ -35,6 +35,7 @@ class SplashScenario(Scenario):
     name = "splash"
     description = ("an object dropped into a tank of water (Physics 101, splash): density, bottom area, "
                    "water drag and start frame from tracked positions and velocities; mass = density x volume")
+    protocol = {"chains": 50, "sweeps": 75}   # the seed: 50 chains per video (75 sweeps: Galileo's)
     noise = Noise("sigma_px", "px", 1.0, "SD of tracked positions (px) and velocities (px/frame), the seed's Sigma = 1")
 
     def scene_from_json(self, data):

@@ -48,7 +48,6 @@ from ...jsonio import read_json, write_json
 from ...runner import RunConfig, infer
 from .scene import CM3
 
-PROTOCOL = {"chains": 50, "sweeps": 75}     # the seed: 50 chains per video (75 sweeps: Galileo's)
 AGREE_IQR = 0.25        # converged: (q75 - q25) / median of the chains' final densities <= this
 MIN_CHAINS, MIN_SWEEPS = 2, 8   # and a run long enough to judge (8 sweeps: 4 after burn-in, as R-hat needs)
 RHAT_MAX = 1.1          # reported beside the rule
@@ -66,7 +65,9 @@ SEED = {"pearson_r": 0.85, "converged_objects": 33, "objects": 36,
 
 
 def default_config() -> RunConfig:
-    return RunConfig(chains=PROTOCOL["chains"], sweeps=PROTOCOL["sweeps"])
+    from . import SplashScenario
+
+    return RunConfig(**SplashScenario.protocol)
 
 
 def _one_line(e: BaseException) -> str:
