@@ -53,3 +53,28 @@ def test_video_without_the_object_is_refused(demo, tmp_path):
     with pytest.raises(GalileoError) as e:
         registry.of(scene).track(tmp_path / "still.mp4", scene, progress=False)
     assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("name", ["002_porcelain0", "005_foam0"])
+def test_small_preset_objects_track_without_ghosts(name, tmp_path):
+    """Two videos of the `small` preset on which the tracker once followed ghosts: the late
+    background holds the object where it comes to rest (a sinking vase on the floor, a
+    floating foam block bobbing at the surface), and a background learned over the first
+    frames held frame 0's object too. Every shown position must be within a few mm, with
+    no jumps, and the foam block's volume must not take in a ghost."""
+    from galileo import registry
+    from galileo.scenarios.splash.dataset import plan, render_one
+
+    spec = next(s for s in plan("small", seed=0) if s.name == name)
+    render_one(spec, str(tmp_path))
+    folder = tmp_path / name
+    scene = registry.load_scene(folder / "scene.json")
+    (obj,) = registry.of(scene).track(folder / "video.mp4", scene, progress=False).objects
+    truth = json.loads((folder / "truth.json").read_text())
+    p_true = np.array(truth["trajectory"]["objects"][0]["position_m"])
+    assert obj.visible.mean() > 0.9
+    err = np.linalg.norm((obj.position_m - p_true)[obj.visible][:, [0, 2]], axis=1)
+    # the vase is a vertical cylinder taken for a box: its box-centre offset is ~2 px off
+    assert np.median(err) < 3e-3 and err.max() < 6e-3
+    if truth["latents"]["kind"] == "box":
+        assert obj.bottom_up["volume_cm3"] == pytest.approx(truth["latents"]["volume_cm3"], rel=0.15)

@@ -2,9 +2,10 @@
 
 1. Background: MOG2 (five components, `galileo.vision.background`) learned backwards over
    the whole video gives the tank as the video ends, with the object where it comes to
-   rest; learned forwards over the first EARLY_FRAMES frames it gives the tank before the
-   object got there. The last frame against the early background finds the object at rest;
-   there the early background replaces the late one: a background without the object.
+   rest. Frame 0 against it shows the object falling through the air (the highest
+   component) and a ghost of the resting object below it; the ghost's place, grown by
+   END_ZONE_PX, takes the median of the first frames in which it still looks as in frame 0:
+   a background without the object.
 2. Foreground per frame against it: the object (its largest component), in air or water
    (the water's tint is in the background too).
 3. KLT (`galileo.vision.klt`): good features inside the frame-0 silhouette, Lucas-Kanade
@@ -15,7 +16,9 @@
    by the offset between the fitted 3-D shape's projected centre and its silhouette's
    box centre (the camera sees the top face too); where the silhouette is not usable
    (too small or large against the fitted shape's, or missing) the KLT motion of the
-   features carries the last centre on. Back-projected onto the plane y = release_m[1]
+   features carries the last centre on. A centre farther from the last one than the
+   object could move in the time between them (MAX_SPEED_MPS on the release plane) is
+   dropped, the frame left without one. Back-projected onto the plane y = release_m[1]
    (the object falls straight down) it gives positions in metres; velocities by central
    differences (`galileo.vision.velocity`). Frames without either are `visible: false`.
 5. Bottom-up kind and volume: the silhouette in the first BOTTOM_UP_FRAMES frames fitted
@@ -44,16 +47,17 @@ from ...datatypes import ObjectTrack, Tracks
 from ...errors import GalileoError
 from ...shapes import Box, Cylinder
 from ...video import read_video_yuv
-from ...vision.background import (clean, dilate, foreground, largest_component, mog2_background, noise_sd,
-                                  resize_to)
+from ...vision.background import (blobs, clean, dilate, foreground, largest_component, mog2_background,
+                                  noise_sd, resize_to)
 from ...vision.klt import flow, klt_window, seed_features
 from ...vision.pose import rot_y
 from ...vision.silhouette import fit_silhouette, shape_silhouette
 from ...vision.velocity import velocity_from_positions
 from .scene import CM3, KINDS
 
-EARLY_FRAMES = 8           # the early background: MOG2 over this many first frames
+EARLY_FRAMES = 4           # the resting place's background: median of at most this many first frames
 END_ZONE_PX = 9            # the object's resting place, grown by this, takes the early background
+GHOST_MIN_FRACTION = 0.2   # frame 0's foreground components this fraction of the largest's area count
 N_FEATURES = 40
 MIN_FEATURES = 4
 BOTTOM_UP_FRAMES = 3       # silhouettes fitted for kind and size
@@ -61,6 +65,8 @@ FIT_PAD_PX = 20
 HCYL_ASPECT = 1.5          # a horizontal cylinder's silhouette is at least this much wider than high
 KIND_MARGIN = 0.01         # 1 - IoU by which a vcyl must beat a box
 AREA_OK = (0.6, 1.6)       # a silhouette is usable within these ratios of the fitted shape's area
+MAX_SPEED_MPS = 3.0        # a centre farther than this x the time since the last one from it is dropped
+                           # (free fall from the highest release reaches ~2 m/s at the water)
 
 
 def _shape(kind: str, w: float, h: float):
@@ -121,6 +127,46 @@ def bottom_up(cam, masks: list[np.ndarray], y_plane: float) -> tuple[str, float,
     return kind, float(w), float(h)
 
 
+def plausible(cam, y_plane: float, c: np.ndarray, c_prev: np.ndarray | None, dt_s: float) -> bool:
+    """Whether the object can have moved from image centre c_prev to c (pixels) in dt_s:
+    at most MAX_SPEED_MPS on the release plane. Always, without a previous centre."""
+    if c_prev is None:
+        return True
+    p = backproject_to_plane(cam, np.array([c, c_prev], float), y_plane)
+    return float(np.linalg.norm(p[0] - p[1])) <= MAX_SPEED_MPS * dt_s
+
+
+def _resting_ghost(fg0: np.ndarray) -> np.ndarray | None:
+    """Where the object comes to rest, from frame 0's foreground against the late background:
+    every sizeable component but the highest one (the object falling through the air at
+    frame 0; the late background holds the object at rest, which shows as a ghost where
+    frame 0 sees the empty tank). None without one."""
+    comps = blobs(fg0, GHOST_MIN_FRACTION)
+    if len(comps) < 2:
+        return None
+    tops = [int(np.nonzero(c.any(axis=1))[0][0]) for c in comps]
+    falling = int(np.argmin(tops))
+    return np.any([c for j, c in enumerate(comps) if j != falling], axis=0)
+
+
+def background(yuv: np.ndarray, noise: float) -> np.ndarray:
+    """The tank without the object: MOG2 learned backwards over the whole video (the tank as
+    the video ends, the object at rest in it), its resting place replaced by the median of
+    the first frames in which that place still looks as in frame 0 (before the object got
+    there). MOG2 learned forwards over the first frames is no substitute: it keeps frame 0's
+    object, and an object that stops within those frames."""
+    bg = mog2_background(yuv, reverse=True)
+    ghost = _resting_ghost(clean(foreground(yuv[0], bg, noise)) > 0)
+    if ghost is None:
+        return bg
+    zone = dilate(ghost, END_ZONE_PX)
+    k = 1
+    while k < min(EARLY_FRAMES, len(yuv)) and not (clean(foreground(yuv[k], yuv[0], noise)) > 0)[zone].any():
+        k += 1
+    bg[zone] = np.median(yuv[:k, zone], axis=0).astype(bg.dtype)
+    return bg
+
+
 def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=None) -> Tracks:
     """Track the splash scene's object in a video; see the module docstring."""
     cam = scene.camera
@@ -136,20 +182,15 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     hw = gray.shape[1:]
     yuv = np.stack([np.concatenate([g[..., None], resize_to(c, hw)], -1) for g, c in zip(gray, chroma)])
     noise = noise_sd(yuv)
-    bg_early = mog2_background(yuv[:min(EARLY_FRAMES, n)], reverse=False)
-    bg = mog2_background(yuv, reverse=True)
-    rest = largest_component(clean(foreground(yuv[-1], bg_early, noise)) > 0)
-    if rest is not None:
-        zone = dilate(rest, END_ZONE_PX)
-        bg[zone] = bg_early[zone]
-    blobs = [largest_component(clean(foreground(f, bg, noise)) > 0) for f in yuv]
-    if sum(b is not None for b in blobs) < 2:
+    bg = background(yuv, noise)
+    found = [largest_component(clean(foreground(f, bg, noise)) > 0) for f in yuv]
+    if sum(b is not None for b in found) < 2:
         raise GalileoError(f"nothing moves in {video_path}: no object against the tank's background")
     y_plane = float(scene.release_m[1])
 
     # bottom-up: the first usable silhouettes
-    seen = [i for i, b in enumerate(blobs) if b is not None]
-    kind, w, h = bottom_up(cam, [blobs[i] for i in seen[:BOTTOM_UP_FRAMES]], y_plane)
+    seen = [i for i, b in enumerate(found) if b is not None]
+    kind, w, h = bottom_up(cam, [found[i] for i in seen[:BOTTOM_UP_FRAMES]], y_plane)
     shape, rot = _shape(kind, w, h)
 
     def expected(uv):
@@ -163,10 +204,11 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
 
     centre = np.full((n, 2), np.nan)
     pts = np.zeros((0, 2), np.float32)
-    c_prev, v_prev = None, np.zeros(2)
+    c_prev, v_prev, i_prev = None, np.zeros(2), -1   # the last centre, its velocity (px/frame), its frame
+    shift = np.zeros(2)                              # the features' motion since frame i_prev
     features = []
     for i in range(n):
-        blob = blobs[i]
+        blob = found[i]
         c_klt = None
         if i and len(pts) and c_prev is not None:
             win = klt_window(blob) if blob is not None else 9
@@ -177,8 +219,11 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
                 good = (ij[:, 0] >= 0) & (ij[:, 0] < hw[1]) & (ij[:, 1] >= 0) & (ij[:, 1] < hw[0])
                 ok &= good
                 ok[good] &= inside[ij[good, 1], ij[good, 0]]
-            if ok.sum() >= MIN_FEATURES:
-                c_klt = c_prev + np.median(new[ok] - pts[ok], axis=0)
+            if ok.sum() >= MIN_FEATURES and shift is not None:
+                shift = shift + np.median(new[ok] - pts[ok], axis=0)
+                c_klt = c_prev + shift
+            else:
+                shift = None
             pts = new[ok]
         c = None
         if blob is not None:
@@ -187,12 +232,16 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
             c_box = c_box + off
             if area and AREA_OK[0] <= blob.sum() / area <= AREA_OK[1]:
                 c = c_box
-        if c is None:
+        dt = (i - i_prev) / cam.fps if c_prev is not None else 0.0
+        if c is not None and not plausible(cam, y_plane, c, c_prev, dt):
+            c = None
+        if c is None and c_klt is not None and plausible(cam, y_plane, c_klt, c_prev, dt):
             c = c_klt
         if c is not None:
             if c_prev is not None:
-                v_prev = c - c_prev
+                v_prev = (c - c_prev) / (i - i_prev)
             centre[i] = c_prev = c
+            i_prev, shift = i, np.zeros(2)
         if blob is not None and len(pts) < max(MIN_FEATURES, N_FEATURES // 2):
             pts = np.concatenate([pts, seed_features(gray[i], blob, N_FEATURES - len(pts), avoid=pts)])
         features.append(pts.copy())
