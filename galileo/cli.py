@@ -206,7 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="trajectory JSON to write")
     s.set_defaults(func=cmd_simulate)
 
-    d = sub.add_parser("dataset", help="render Physics-101-style ramp videos with ground truth")
+    d = sub.add_parser("dataset", help="render Physics-101-style videos (ramp or splash) with ground truth")
     d.add_argument("--scenario", choices=["ramp", "splash"], default="ramp",
                    help="ramp (default) or splash: objects dropped into a tank of water")
     d.add_argument("--preset", choices=["demo", "small", "full"], default="demo")

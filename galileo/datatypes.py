@@ -75,6 +75,8 @@ class Tracks:
                 pos = np.array([p if p is not None else nan3 for p in o["position_m"]], float).reshape(-1, 3)
                 vel = np.array([p if p is not None else nan3 for p in o["velocity_mps"]], float).reshape(-1, 3)
                 shape = Shape(o["shape"]["type"], tuple(o["shape"]["size_m"]))
+                if not (np.isfinite(pos[vis]).all() and np.isfinite(vel[vis]).all()):
+                    raise ValueError(f"object {o['name']!r}: a visible frame without a finite position and velocity")
                 bottom_up = o.get("bottom_up", {})
                 if not isinstance(bottom_up, dict):
                     raise TypeError("bottom_up must be an object")

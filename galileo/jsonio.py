@@ -43,7 +43,12 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
 
 
 def write_json(path: str | os.PathLike, obj: Any, *, indent: int | None = 1) -> None:
-    text = json.dumps(obj, indent=indent, default=_default)
+    """`obj` as JSON, atomically. A NaN or infinity is refused (GalileoError): JSON has none,
+    and a file that holds one is no result."""
+    try:
+        text = json.dumps(obj, indent=indent, default=_default, allow_nan=False)
+    except ValueError as e:
+        raise GalileoError(f"not writing {path}: a value is not a finite number ({e})") from None
     atomic_write_bytes(path, (text + "\n").encode())
 
 

@@ -46,10 +46,12 @@ class Proposal(NamedTuple):
     integer_sites: tuple[int, ...] = ()
 
     def width(self, sweep_number: int, site: int) -> float:
-        """Half-width for sweep `sweep_number` (1-based) and latent `site`."""
+        """Half-width for sweep `sweep_number` (1-based) and latent `site` (an integer site's
+        step: a whole number, at least 1)."""
         broad = self.broad_every and sweep_number % self.broad_every == 0
         w = self.broad if broad else self.narrow
-        return float(w[site] if isinstance(w, (list, tuple, np.ndarray)) else w)
+        w = float(w[site] if isinstance(w, (list, tuple, np.ndarray)) else w)
+        return float(max(1, round(w))) if site in self.integer_sites else w
 
 
 LogDensity = Callable[..., float]

@@ -8,7 +8,8 @@ ran which sweeps: the batch runner sends each chain once for all its sweeps, the
 sends one sweep at a time and steers in between, and both give the same chains bit for bit.
 
 Chain c draws its random numbers from SeedSequence(seed, spawn_key=(c,)) (`mcmc.chain_rng`)
-and starts at `initial_positions(bounds, c + 1, seed)[c]` (drawn from the prior).
+and starts where its scenario says (`Scenario.initial_positions`: by default drawn from the
+prior, `initial_positions(bounds, c + 1, seed)[c]`; the splash starts as its seed says).
 
 Executors: anything with `map(fn, iterable)` (results in order). `LocalPool` (forked worker
 processes, each with its own pybullet client; a likelihood is built once per worker and
@@ -261,6 +262,10 @@ def _ping(_=None) -> int:
     return os.getpid()
 
 
+class WorkerDied(GalileoError):
+    """A worker process of a LocalPool died (the pool is broken and must be made anew)."""
+
+
 class InProcess:
     """The executor of `workers=1`: tasks run here, one after another (starting, like a new
     pool, without likelihoods kept from earlier runs)."""
@@ -294,7 +299,7 @@ class LocalPool:
         try:
             yield from self._pool.map(fn, iterable)
         except BrokenProcessPool as e:
-            raise GalileoError(f"an inference worker died: {e}") from None
+            raise WorkerDied(f"an inference worker died: {e}") from None
 
     def shutdown(self) -> None:
         self._pool.shutdown(wait=True, cancel_futures=True)

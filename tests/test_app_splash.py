@@ -39,9 +39,24 @@ def test_the_object_stands_where_the_scored_motion_puts_it(splash_viewer):
     v.set_frame(frame)
     v.select_sample(chain, 1)
     assert (v.selection.chain, v.selection.index) == (chain, 1)
-    motion = v.model.motion(ctrl.samples(chain)[1])
-    assert v.traj.names == motion.names and len(v.object_handles) == 1
+    motion = v.traj
+    assert len(v.object_handles) == 1
     np.testing.assert_array_equal(np.asarray(v.object_handles[0].position, float), motion.position_m[0, frame])
+    # the drawn motion is the one scored: the seed's Gaussian on positions and velocities (x, z),
+    # Sigma = 1 px and 1 px/frame at the release depth, recomputed here from the drawing and
+    # the tracks, equals the log-likelihood the controller recorded for that sample
+    from galileo.scenarios.splash.likelihood import metres_per_pixel
+
+    obs = v.tracks.objects[0]
+    seen = obs.visible
+    mpp = metres_per_pixel(ctrl.likelihood_scene) * ctrl.settings.noise
+    sx, sv = mpp, mpp * v.tracks.fps
+    dx = (obs.position_m - motion.position_m[0])[seen][:, [0, 2]]
+    dv = (obs.velocity_mps - motion.velocity_mps[0])[seen][:, [0, 2]]
+    n = 2 * int(seen.sum())
+    ll = (-0.5 * (dx ** 2).sum() / sx ** 2 - 0.5 * (dv ** 2).sum() / sv ** 2
+          - n * np.log(sx * np.sqrt(2 * np.pi)) - n * np.log(sv * np.sqrt(2 * np.pi)))
+    assert ll == pytest.approx(ctrl.logliks(chain)[1], rel=1e-9, abs=1e-6)
     tank = ctrl.likelihood_scene.tank
     assert 0 < motion.position_m[0, frame, 2] < tank.size_m[2]      # inside the tank, drawn there
     assert {"water", "tank/floor"} <= {m.name for m in v.scenario.drawing(v.scene).static}
@@ -80,3 +95,12 @@ def test_command_line_picks_the_demo_and_its_chains():
     with pytest.raises(SystemExit) as e:
         app.parse_args(["--scenario", "bowling"])
     assert e.value.code == 2
+
+
+def test_steering_keeps_widths_and_integer_latents_valid(splash_viewer):
+    ctrl, _ = splash_viewer
+    with pytest.raises(ValueError, match="2 widths for 4 latents"):
+        ctrl.set_widths((0.1, 0.2), 0.5, 20)      # would break every later sweep
+    chain = ctrl.chain_ids()[0]
+    ctrl.set_chain(chain, {"start_step": 7.3})
+    assert ctrl.position(chain)["start_step"] == 7.0   # an integer latent stays on its grid

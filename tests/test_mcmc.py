@@ -321,3 +321,13 @@ def test_sweep_is_pure_and_counts_sweeps():
     assert [i.width for i in infos1] == [0.5] * 3  # sweep 20 is a broad one
     _, infos3 = sweep(chain_rng(0, 0), state, target, bounds, sites=[2])
     assert [i.site for i in infos3] == [2]
+
+
+def test_an_integer_site_moves_by_whole_steps():
+    """An integer latent's proposal is +-w with w a whole number >= 1, whatever width it is
+    given (0.05 would leave the integers); others keep their widths."""
+    from galileo.mcmc import Proposal
+
+    p = Proposal(0.05, 0.5, 20, integer_sites=(1,))
+    assert p.width(1, 0) == 0.05 and p.width(1, 1) == 1.0 and p.width(20, 1) == 1.0
+    assert Proposal((0.05, 3.0), 0.5, 20, (1,)).width(1, 1) == 3.0

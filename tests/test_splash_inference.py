@@ -145,3 +145,35 @@ def test_bad_splash_scenes_are_one_line_errors(tmp_path, change, needle):
     r = subprocess.run([sys.executable, "-m", "galileo", "simulate", "--scene", str(path), "--out",
                         str(tmp_path / "t.json")], capture_output=True, text=True)
     assert r.returncode == 2 and needle in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_simulate_shows_the_scene_from_its_start_step(sinker, tmp_path):
+    """`galileo simulate` on a splash scene gives the video's frames: frame 0 at physics step
+    start_step after the release, as the renderer and the likelihood show it."""
+    from galileo.cli import main
+
+    scene, _ = sinker
+    scene.save(tmp_path / "scene.json")
+    for start in (5, 25):
+        assert main(["simulate", "--scene", str(tmp_path / "scene.json"), "--set", f"start_step={start}",
+                     "--frames", "3", "--out", str(tmp_path / f"t{start}.json")]) == 0
+    z = {s: json.loads((tmp_path / f"t{s}.json").read_text())["objects"][0]["position_m"][0][2] for s in (5, 25)}
+    g, dt = 9.81, 1 / 240   # semi-implicit Euler in free fall: z0 - g dt^2 k (k + 1) / 2 after k steps
+    for s in (5, 25):
+        # air drag (1e-3 x 0.7 x 1/2 rho_w A v^2 on 32 g) slows it by < 0.1 mm in 0.1 s
+        assert z[s] == pytest.approx(scene.release_m[2] - g * dt * dt * s * (s + 1) / 2, abs=1e-4)
+    assert z[5] - z[25] > 5e-3   # 20 more steps of fall: 5.6 mm
+
+
+def test_nan_in_tracks_or_outputs_is_refused(tmp_path):
+    from galileo.errors import GalileoError
+    from galileo.jsonio import write_json
+
+    d = {"fps": 30.0, "objects": [{"name": "o", "role": "object", "position_m": [[0, 0, 0.1], None],
+                                   "velocity_mps": [[0, 0, 0], None], "visible": [True, True],
+                                   "shape": {"type": "box", "size_m": [0.01, 0.01, 0.01]}}]}
+    with pytest.raises(GalileoError, match="visible frame"):
+        Tracks.from_json(d)
+    with pytest.raises(GalileoError, match="finite"):
+        write_json(tmp_path / "r.json", {"map_loglik": float("nan")})
+    assert not (tmp_path / "r.json").exists()

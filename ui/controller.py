@@ -53,7 +53,7 @@ from galileo.errors import GalileoError
 from galileo.latents import as_number, by_name, check_bounds, check_noise, check_widths
 from galileo.mcmc import chain_rng
 from galileo.results import kept_draws, rhat_ess
-from galileo.runner import PROPOSAL_FIELDS, ChainTask, Problem, Settings, run_task
+from galileo.runner import PROPOSAL_FIELDS, ChainTask, Problem, Settings, WorkerDied, run_task
 
 from . import session as sess
 
@@ -116,7 +116,9 @@ class _Chain:
 
     def to_json(self) -> dict:
         return {"id": self.id, "start": self.start.tolist(), "position": self.position.tolist(),
-                "logdensity": self.logdensity, "sweep": self.sweep, "paused": self.paused,
+                # (-inf, a position outside the model's support, is stored as "evaluate again")
+                "logdensity": self.logdensity if self.logdensity is not None and math.isfinite(self.logdensity)
+                else None, "sweep": self.sweep, "paused": self.paused,
                 "removed": self.removed, "rng": self.rng_state, "n_samples": len(self.samples),
                 "n_proposals": len(self.proposals["site"])}
 
@@ -226,7 +228,7 @@ class Controller:
                 with self._lock:
                     self._in_flight = False
                     self._apply_pending()
-                if isinstance(e, GalileoError) and self._own_executor and "died" in str(e):
+                if isinstance(e, WorkerDied) and self._own_executor:
                     self._executor = None   # a fresh pool next round
                 if isinstance(e, GalileoError):
                     raise
@@ -402,6 +404,8 @@ class Controller:
                     continue
                 x = float(ch.position[j])
                 y = min(max(x, lo), hi)
+                if self._specs[name].integer:
+                    y = float(min(max(round(y), math.ceil(lo)), math.floor(hi)))
                 if y != x:
                     ch.position = ch.position.copy()
                     ch.position[j] = y
@@ -432,6 +436,9 @@ class Controller:
     def set_widths(self, narrow: float, broad: float, broad_every: int) -> None:
         """Proposal half-widths: U(-narrow, narrow), U(-broad, broad) every broad_every-th sweep (0: never)."""
         n, b, e = check_widths(narrow, broad, broad_every)
+        for w, what in ((n, "narrow"), (b, "broad")):
+            if isinstance(w, tuple) and len(w) != len(self.names):
+                raise ValueError(f"{what}: {len(w)} widths for {len(self.names)} latents ({', '.join(self.names)})")
 
         def apply():
             s = self._settings
@@ -552,6 +559,8 @@ class Controller:
                 j = self.names.index(k)
                 lo, hi = self._settings.bounds[k]
                 y = min(max(float(x), lo), hi) if clamp else float(x)
+                if self._specs[k].integer:   # an integer latent stays on its grid
+                    y = float(min(max(round(y), math.ceil(lo)), math.floor(hi)))
                 if y != x:
                     clamped[k] = {"from": float(x), "to": y}
                 pos[j] = y

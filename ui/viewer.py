@@ -21,6 +21,7 @@ Several tabs share one state: the GUI lives on the server, so an edit shows ever
 """
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from dataclasses import dataclass
@@ -30,11 +31,12 @@ import trimesh
 import viser
 from viser import uplot
 
-from galileo.results import burn_in
-from galileo.datatypes import Trajectory
 from galileo import registry
 from galileo.camera import Camera
-from galileo.datatypes import Tracks
+from galileo.datatypes import Tracks, Trajectory
+from galileo.results import burn_in
+
+log = logging.getLogger(__name__)
 
 OBJECT_COLORS = [(220, 90, 50), (70, 130, 220)]
 NOT_EDITS = ("init", "pause", "resume")
@@ -452,6 +454,7 @@ class Viewer:
                 except Exception:  # a closing server must not kill the thread with a traceback storm
                     if self._stop.is_set():
                         return
+                    log.exception("viewer refresh failed")
             self._stop.wait(0.5)  # at most 2 refreshes a second
 
     def refresh(self) -> None:

@@ -168,7 +168,7 @@ class VelocityLikelihood:
         """(log-likelihood, stopped_early). With a threshold and speed-ups, may stop early and
         return an upper bound below the threshold."""
         values = self.values_of(position)
-        limit = -math.inf if (threshold is None or not self.speedups) else threshold - self.log_norm
+        limit = -math.inf if (threshold is None or not self.speedups) else threshold
         total, early, _ = self._evaluate(values, limit)
         return self.log_norm + total, early
 
@@ -198,7 +198,7 @@ class VelocityLikelihood:
                 return prefix.full, False, None
             if prefix.snapshot is not None:
                 total = float(prefix.terms.sum())
-                if total < limit:
+                if self.log_norm + total < limit:   # the kernel's own test: value < threshold
                     return total, True, None
                 return self._phase_b(values, prefix.first_b, prefix.substeps, prefix.snapshot, total, limit, rec)
         w = sim.reset(self._phase_a_values(values))
@@ -286,7 +286,8 @@ class VelocityLikelihood:
                 substeps_done: int = 0):
         """Step through frames first.. (stepping into `first` unless it is 0), adding terms.
 
-        Returns (status, frame, total): "done", "early" (partial sum below the limit),
+        Returns (status, frame, total): "done", "early" (normaliser + partial sum below the
+        limit, the MH threshold),
         "rest" (the world came to rest; the rest of the frames added at zero velocity) or,
         in phase A, "switch" (the objects came within one frame's reach of each other at
         `frame`; its term is added). Per-frame terms go into `terms` unless it is None.
@@ -340,7 +341,7 @@ class VelocityLikelihood:
             if terms is not None:
                 terms[f] = term
             total += term
-            if total < limit:
+            if self.log_norm + total < limit:   # the kernel's own test: value < threshold
                 return "early", f, total
             if phase_a and f < n - 1 and self._within(w, twists, f * spf, frame_dt):
                 return "switch", f, total

@@ -9,6 +9,7 @@ This folder holds all of it: the scene and priors (`scene.py`), buoyancy and dra
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -70,6 +71,10 @@ class SplashScenario(Scenario):
             raise GalileoError(f"tracks at {tracks.fps:g} fps but the scene camera at {scene.fps:g} fps")
         found = tracks.objects[0].bottom_up
         obj = scene.obj
+        if "volume_cm3" in found:
+            v = found["volume_cm3"]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise GalileoError(f"tracks: bottom_up.volume_cm3 must be a positive number, got {v!r}")
         if "kind" in found:
             if found["kind"] not in KINDS:
                 raise GalileoError(f"tracks: bottom_up.kind must be one of {', '.join(KINDS)}, got {found['kind']!r}")
@@ -85,9 +90,11 @@ class SplashScenario(Scenario):
         return new
 
     def simulate(self, scene, n_frames, values=None, fps=None):
+        """The video's frames: frame 0 at physics step start_step after the release."""
         from .physics import Simulator
 
-        return Simulator(scene).run(n_frames, values, fps=fps)
+        start = int(round((values or {}).get("start_step", scene.start_step)))
+        return Simulator(scene).run(n_frames, values, fps=fps, start_step=start)
 
     def likelihood(self, prepared_scene, tracks, noise, speedups=True):
         from .likelihood import SplashLikelihood

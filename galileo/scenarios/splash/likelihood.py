@@ -27,7 +27,8 @@ path, which simulates every frame of every proposal from the release):
 * at-rest cut-off: after the rest rule holds, the remaining frames are known without stepping.
 * reuse of what does not change with a latent: the simulation does not depend on t, only the
   alignment does. A run that completes goes on to the horizon (the start's prior upper
-  bound + the video's length) and its every step is kept (keyed on s, rho, D_w); a proposal
+  bound in the scene file + the video's length; a start beyond it, under bounds widened
+  at run time, simulates afresh) and its every step is kept (keyed on s, rho, D_w); a proposal
   of t is then scored from the kept steps without simulating.
 """
 from __future__ import annotations
@@ -54,6 +55,8 @@ def metres_per_pixel(scene: SplashScene) -> float:
     if cam is None:
         raise GalileoError("the splash likelihood measures in pixels: the scene needs a camera")
     p = cam.world_to_camera[:3, :3] @ np.asarray(scene.release_m) + cam.world_to_camera[:3, 3]
+    if not p[2] > 0:
+        raise GalileoError("the release point is behind the scene's camera")
     return float(p[2] / math.sqrt(cam.K[0, 0] * cam.K[1, 1]))
 
 
@@ -105,11 +108,13 @@ class SplashLikelihood:
     def __call__(self, position, threshold: float | None = None):
         """(log-likelihood, stopped_early); see the module docstring."""
         values = self.values_of(position)
-        limit = -math.inf if (threshold is None or not self.speedups) else threshold - self.log_norm
+        limit = -math.inf if (threshold is None or not self.speedups) else threshold
         total, early, _ = self._evaluate(values, limit)
         return self.log_norm + total, early
 
     def _evaluate(self, values: dict, limit: float, record: bool = False):
+        """Sum of the per-frame terms (without the normaliser); stops early once the value
+        (normaliser + partial sum, an upper bound) falls below `limit`, the MH threshold."""
         t = int(round(values["start_step"]))
         key = (values["area_cm2"], values["density_g_cm3"], values["drag_water"])
         n, spf = self.n_frames, self.spf
@@ -122,7 +127,7 @@ class SplashLikelihood:
             for f in range(n):
                 k = t + f * spf
                 total += self._term(f, pos[k], vel[k])
-                if total < limit:
+                if self.log_norm + total < limit:   # the kernel's own test: value < threshold
                     return total, True, None
             return total, False, self._shown(kept, t) if record else None
         stepper = self.sim.frames(values)
@@ -156,7 +161,7 @@ class SplashLikelihood:
             if k == t + f * spf and f < n:
                 total += self._term(f, pos[k], vel[k])
                 f += 1
-                if total < limit:
+                if self.log_norm + total < limit:   # the kernel's own test: value < threshold
                     return total, True, None
         if self.speedups:
             self._kept[key] = (pos, vel, orn)

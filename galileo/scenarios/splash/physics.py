@@ -48,6 +48,7 @@ TANK_FRICTION = 0.5
 SOLVER_ITERATIONS = 10
 MESH_SECTIONS = 24           # a cylinder's facets for the submerged-volume cut
 GLASS_COLOR = (0.75, 0.85, 0.9, 0.25)
+MAX_KEPT_SHAPES = 64         # the object's shapes kept for reuse (one per bottom area proposed)
 
 
 @dataclass
@@ -112,8 +113,8 @@ def _cut_below(tris, nx, ny, nz, d):  # pragma: no cover - compiled
     vol6 = 0.0
     mx = my = mz = 0.0
     pts = np.empty((4, 3))
+    h = np.empty(3)
     for i in range(tris.shape[0]):
-        h = np.empty(3)
         below = 0
         for k in range(3):
             h[k] = tris[i, k, 0] * nx + tris[i, k, 1] * ny + tris[i, k, 2] * nz - d
@@ -189,7 +190,7 @@ class _World:
             pb.changeDynamics(b, -1, lateralFriction=1.0, restitution=0.0, physicsClientId=cid)
             self.statics.append(b)
         self.body: int | None = None
-        self.body_key = None
+        self.shapes: dict = {}    # shape -> (collision shape, visual shape) made in this world
 
 
 class Simulator:
@@ -219,13 +220,21 @@ class Simulator:
     def _place(self, body: Body, values: dict) -> int:
         """A fresh object body at the release point, at rest, with the values' density."""
         w = self.world
+        key = body.shape
+        if key not in w.shapes and len(w.shapes) >= MAX_KEPT_SHAPES:
+            # Bullet frees a collision shape only with its world (removeCollisionShape refuses
+            # one a body has used, even a removed body): build the tank anew
+            w.key = None
+            w = self.world
         cid = w.cid
         if w.body is not None:
             pb.removeBody(w.body, physicsClientId=cid)
             w.body = None
         mass = values["density_g_cm3"] * 1000.0 * body.volume_m3
-        b = pb.createMultiBody(mass, collision_shape(body.shape, cid),
-                               visual_shape(body.shape, cid) if self.visual else -1,
+        if key not in w.shapes:    # one shape per object size, reused by later runs of that size
+            w.shapes[key] = (collision_shape(body.shape, cid), visual_shape(body.shape, cid) if self.visual else -1)
+        col, vis = w.shapes[key]
+        b = pb.createMultiBody(mass, col, vis,
                                basePosition=list(self.scene.release_m), baseOrientation=list(body.orn0),
                                physicsClientId=cid)
         pb.changeDynamics(b, -1, lateralFriction=TANK_FRICTION, restitution=0.0, linearDamping=0.0,
