@@ -258,6 +258,10 @@ def summarise(records: list[dict], heavier: dict | None = None) -> dict:
         "mass_correlation": {
             "videos": correlation([r["truth"]["mass_kg"] for r in conv], [r["mass_kg"] for r in conv]),
             "videos_map_mass": correlation([r["truth"]["mass_kg"] for r in conv], [r["map_mass_kg"] for r in conv]),
+            # every video with a prediction, converged or not (the rule keeps few of the
+            # lightest and heaviest, which the correlation depends on)
+            "all_predicted": correlation([r["truth"]["mass_kg"] for r in predicted],
+                                         [r["mass_kg"] for r in predicted]),
             "objects": {**correlation(obj_true, obj_pred), "converged_objects": len(objects),
                         "objects": len({r["object"] for r in records})},
             "median_relative_error": float(np.median(rel)) if rel else None},
