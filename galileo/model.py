@@ -91,11 +91,21 @@ class Scenario(ABC):
     description: str = ""
     noise: Noise
     protocol: dict = {"chains": 16, "sweeps": 75}   # the paper's chains x sweeps per video (the defaults)
+    # the scenario's package: by default its `scene` module parses and makes scenes
+    # (`scene_from_json`, `default_scene`) and its `tracking` module tracks (`track`)
+    package: str = ""
+
+    def _part(self, module: str, name: str):
+        import importlib
+
+        if not self.package:
+            raise NotImplementedError(f"the {self.name} scenario names no package for its {module}.{name}")
+        return getattr(importlib.import_module(f"{self.package}.{module}"), name)
 
     # -- scene -----------------------------------------------------------------------------
-    @abstractmethod
     def scene_from_json(self, data: Any) -> Any:
         """Parse and validate a scene (SceneError naming the field)."""
+        return self._part("scene", "scene_from_json")(data)
 
     def load_scene(self, path: str | Path) -> Any:
         from .errors import SceneError
@@ -106,9 +116,9 @@ class Scenario(ABC):
         except SceneError as e:
             raise SceneError(f"{path}: {e}") from None
 
-    @abstractmethod
     def latents(self, scene) -> tuple[Latent, ...]:
         """The latents inferred in this scene, with the scene's prior bounds."""
+        return scene.latent_specs()
 
     def initial_positions(self, prepared_scene, latents: Sequence[Latent], bounds: np.ndarray, n_chains: int,
                           seed: int) -> np.ndarray:
@@ -128,9 +138,9 @@ class Scenario(ABC):
         return scene.with_values(values)
 
     # -- observations ----------------------------------------------------------------------
-    @abstractmethod
     def track(self, video_path, scene, *, progress: bool = True, debug_video=None) -> Tracks:
         """Pixels -> observations."""
+        return self._part("tracking", "track")(video_path, scene, progress=progress, debug_video=debug_video)
 
     @abstractmethod
     def prepare(self, scene, tracks: Tracks):
@@ -176,9 +186,9 @@ class Scenario(ABC):
                 "noise": {"name": self.noise.name, "unit": self.noise.unit, "default": self.noise.default},
                 "latents": [lat.to_json() for lat in lats]}
 
-    @abstractmethod
     def default_scene(self):
         """A standard scene of this scenario (for `galileo scenarios` and the demo)."""
+        return self._part("scene", "default_scene")()
 
     # -- the video a scene describes ------------------------------------------------------------
     def camera(self, scene) -> "Camera | None":

@@ -24,25 +24,9 @@ class RampScenario(Scenario):
     name = "ramp"
     description = ("an object slides down a ramp and maybe hits a target on the ground "
                    "(Galileo, NIPS 2015): masses and frictions from tracked velocities")
+    package = __name__   # scene.py, tracking.py
     noise = Noise("sigma_mps", "m/s", 0.05, "SD of each tracked velocity component (x, z), the paper's Sigma")
 
-    def scene_from_json(self, data):
-        from .scene import scene_from_json
-
-        return scene_from_json(data)
-
-    def default_scene(self):
-        from .scene import default_scene
-
-        return default_scene()
-
-    def latents(self, scene):
-        return scene.latent_specs()
-
-    def track(self, video_path, scene, *, progress: bool = True, debug_video=None):
-        from .tracking import track
-
-        return track(video_path, scene, progress=progress, debug_video=debug_video)
 
     def prepare(self, scene, tracks):
         from .likelihood import scene_for_inference

@@ -36,28 +36,9 @@ class SplashScenario(Scenario):
     name = "splash"
     description = ("an object dropped into a tank of water (Physics 101, splash): density, bottom area, "
                    "water drag and start frame from tracked positions and velocities; mass = density x volume")
+    package = __name__   # scene.py, tracking.py
     protocol = {"chains": 50, "sweeps": 75}   # the seed: 50 chains per video (75 sweeps: Galileo's)
     noise = Noise("sigma_px", "px", 1.0, "SD of tracked positions (px) and velocities (px/frame), the seed's Sigma = 1")
-
-    def scene_from_json(self, data):
-        from .scene import scene_from_json
-
-        return scene_from_json(data)
-
-    def default_scene(self):
-        from .scene import default_scene
-
-        return default_scene()
-
-    def latents(self, scene):
-        return scene.latent_specs()
-
-    def track(self, video_path, scene, *, progress: bool = True, debug_video=None):
-        """The object's positions and velocities, and its bottom-up kind and volume, from the
-        video (`tracking.py`)."""
-        from .tracking import track
-
-        return track(video_path, scene, progress=progress, debug_video=debug_video)
 
     def prepare(self, scene, tracks):
         """The scene with the bottom-up shape kind and volume from the tracks (when they carry
