@@ -69,6 +69,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
     p.add_argument("--name", help="session name (default: the video's name; demo / splash-demo)")
+    p.add_argument("--init", choices=["prior", "recognition"], default="prior",
+                   help="where chains start: the prior, or what the recognition model reads in the video's "
+                        "first frame (Galileo Fig. 4)")
+    p.add_argument("--model", help="recognition model for --init recognition (default: the built-in ramp model)")
     args = p.parse_args(argv)
     if args.chains is None:
         from galileo import registry
@@ -109,6 +113,15 @@ def run(args) -> int:
     from ui.viewer import Viewer
 
     mode, url = _rerun_mode(args)
+    model = None
+    if args.session and (args.init != "prior" or args.model):
+        raise GalileoError("--init and --model start a new session's chains; a reopened session keeps its own")
+    if args.model and args.init != "recognition":
+        raise GalileoError("--model is for --init recognition")
+    if args.init == "recognition":   # before tracking: a bad model file fails fast
+        from galileo.recognition.model import load_model
+
+        model = load_model(args.model, registry.load_scene(args.scene).scenario if args.scene else args.scenario)
     if args.session:
         session = Path(args.session)
         ctrl = Controller.load(session, workers=args.workers)
@@ -134,8 +147,13 @@ def run(args) -> int:
 
         shutil.copyfile(video_path, session / "video.mp4")
         # (the controller writes scene.json and tracks.json into the session; bounds: the priors')
+        init = None
+        if model is not None:
+            from galileo.recognition.model import recognition_init
+
+            init = recognition_init(model, video_path, scene, tracks, source=str(args.model or "built-in"))
         ctrl = Controller(scene, tracks, chains=args.chains, seed=args.seed, workers=args.workers,
-                          session_dir=session)
+                          session_dir=session, init=init)
     video, _ = read_video(video_path)
     old_rrd = session / RRD_NAME
     if mode != "off" and old_rrd.exists():  # keep the earlier run's recording

@@ -107,11 +107,28 @@ def cmd_infer(args: argparse.Namespace) -> int:
         cfg.settings(scenario.latents(scene), scenario.noise)
     except ValueError as e:
         raise GalileoError(str(e)) from None
+    if args.recognition_move is not None and args.recognition_move < 1:
+        raise GalileoError("--recognition-move must be at least 1 (every how many sweeps)")
+    if args.recognition_move and args.init != "recognition":
+        raise GalileoError("--recognition-move needs --init recognition (the move draws from the recognition model)")
+    model = None
+    if args.init == "recognition":
+        from .recognition.model import load_model
+
+        model = load_model(args.model, scenario.name)   # before tracking: a bad model file fails fast
+    elif args.model:
+        raise GalileoError("--model is for --init recognition")
     if args.tracks:
         tracks = Tracks.load(args.tracks)
     else:
         tracks = scenario.track(args.video, scene, progress=not args.quiet)
-    result = infer(scene, tracks, cfg, progress=not args.quiet)
+    init = None
+    if model is not None:
+        from .recognition.model import recognition_init
+
+        init = recognition_init(model, args.video, scene, tracks, args.recognition_move or 0,
+                                source=str(args.model or "built-in"))
+    result = infer(scene, tracks, cfg, progress=not args.quiet, init=init)
     npz = result.save(args.out)
     print(f"MAP: {scenario.summary(result.scene, result.map)}")
     print(f"wrote {args.out} and {npz} ({result.timing_s['wall']:.1f} s, {result.steps} physics steps)")
@@ -163,6 +180,90 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     summary = dict(report["summary"])
     summary.pop("k1_errors", None)
     print(json.dumps(summary, indent=1))
+    return 0
+
+
+def cmd_recognize_label(args: argparse.Namespace) -> int:
+    from . import registry
+    from .recognition.data import LABELS_FILE, dataset_scenario, make_labels
+    from .runner import RunConfig
+
+    protocol = registry.get(dataset_scenario(args.dataset)).protocol
+    cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
+                    sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps, seed=args.seed,
+                    workers=args.workers)
+    cfg.check()
+    out = make_labels(args.dataset, cfg, progress=not args.quiet)
+    v = out["videos"].values()
+    n_mass = sum(x.get("mass_kg") is not None for x in v)
+    n_fric = sum(x.get("friction") is not None for x in v)
+    print(f"wrote {Path(args.dataset) / LABELS_FILE}: {len(out['videos'])} videos, {n_mass} with a mass label, "
+          f"{n_fric} with a friction label")
+    return 0
+
+
+def cmd_recognize_train(args: argparse.Namespace) -> int:
+    if args.labels == "simulation":
+        from .recognition.simulation import train_model as train_sim
+
+        model = train_sim(args.dataset, holdout_fold=None if args.holdout_fold < 0 else args.holdout_fold,
+                          seed=args.seed, progress=not args.quiet)
+    else:
+        from .recognition.train import train_model
+
+        model = train_model(args.dataset, args.labels, holdout_fold=None if args.holdout_fold < 0 else args.holdout_fold,
+                            seed=args.seed, progress=not args.quiet)
+    model.save(args.out)
+    m = model.meta
+    print(f"wrote {args.out}: {m.get('kind', 'lenet')} on {args.labels} labels, {len(m['train_objects'])} training "
+          f"objects, {len(m['test_objects'])} held out ({m['train_seconds']:.0f} s)")
+    return 0
+
+
+def cmd_recognize_eval(args: argparse.Namespace) -> int:
+    import json
+
+    from .recognition.train import evaluate_model, figure3
+
+    if args.model:
+        out = evaluate_model(args.dataset, args.model, args.out, progress=not args.quiet)
+    else:
+        out = figure3(args.dataset, args.out, folds=args.splits, seed=args.seed, progress=not args.quiet,
+                      simulation=not args.no_simulation)
+    print((Path(args.out) / "table.md").read_text())
+    print(f"wrote {Path(args.out) / 'table.json'}, table.md and the scatter figures")
+    return 0 if out else 0
+
+
+def cmd_recognize_predict(args: argparse.Namespace) -> int:
+    import json
+
+    from . import registry
+    from .datatypes import Tracks
+    from .recognition.model import load_model
+
+    scene = registry.load_scene(args.scene)
+    scenario = registry.of(scene)
+    model = load_model(args.model, scenario.name)
+    tracks = Tracks.load(args.tracks) if args.tracks else None
+    if tracks is None and not args.no_track:
+        from .errors import GalileoError as _E
+        try:
+            tracks = scenario.track(args.video, scene, progress=False)
+        except _E:
+            tracks = None   # e.g. nothing moves: read the objects where the scene file puts them
+    readings = model.read_video(args.video, scene, tracks)
+    out = {"model": str(args.model or "built-in"), "labels": model.meta.get("labels"),
+           "objects": {role: r.to_json() for role, r in readings.items()}}
+    if args.out:
+        from .jsonio import write_json
+
+        write_json(args.out, out)
+    for role, r in readings.items():
+        j = r.to_json()
+        print(f"{role}: mass {j['mass_kg']:.3g} kg (90%: {j['mass_kg_90'][0]:.3g}-{j['mass_kg_90'][1]:.3g}), "
+              f"friction {j['friction']:.3f} (90%: {j['friction_90'][0]:.3f}-{j['friction_90'][1]:.3f}), "
+              f"from {r.patches} patch(es)")
     return 0
 
 
@@ -240,6 +341,14 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--broad", type=float, help="half-width of the periodic broad proposal (default: the latents', 0.5)")
     i.add_argument("--broad-every", type=int, help="every how many sweeps the broad one is used (default 20)")
     i.add_argument("--no-speedups", action="store_true", help="plain path: full simulations (for checks)")
+    i.add_argument("--init", choices=["prior", "recognition"], default="prior",
+                   help="where chains start: drawn from the prior (the paper's default) or from what the "
+                        "recognition model reads in the video (Galileo Fig. 4)")
+    i.add_argument("--model", help="recognition model file for --init recognition (default: the built-in ramp "
+                   "model)")
+    i.add_argument("--recognition-move", type=int, metavar="EVERY", default=None,
+                   help="with --init recognition: also propose the whole latent vector from the recognition "
+                        "model every EVERY sweeps (an exact independence MH move)")
     i.add_argument("--out", required=True, help="result JSON (the sample record goes beside it as .samples.npz)")
     i.add_argument("--quiet", action="store_true", help="no progress bars")
     i.set_defaults(func=cmd_infer)
@@ -263,6 +372,50 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", required=True, help="report JSON (rewritten after every video)")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=cmd_experiment)
+
+    r = sub.add_parser("recognize", help="the recognition model (Galileo section 4): mass and friction from one "
+                       "frame, trained on Galileo's own inferences")
+    rsub = r.add_subparsers(dest="recognize_command", required=True, metavar="STEP")
+    rl = rsub.add_parser("label", help="Galileo labels: track and infer every video of a dataset "
+                         "(resumable; writes DATASET/labels.galileo.json)")
+    rl.add_argument("--dataset", required=True, help="folder written by `galileo dataset`")
+    rl.add_argument("--chains", type=int, default=None, help="chains per video (default: the protocol's, 16)")
+    rl.add_argument("--sweeps", type=int, default=None, help="sweeps per chain (default 75)")
+    rl.add_argument("--seed", type=int, default=0)
+    rl.add_argument("--workers", type=int, default=None)
+    rl.add_argument("--quiet", action="store_true")
+    rl.set_defaults(func=cmd_recognize_label)
+    rt = rsub.add_parser("train", help="train a recognition model on a dataset")
+    rt.add_argument("--dataset", required=True, help="folder written by `galileo dataset`")
+    rt.add_argument("--labels", choices=["galileo", "oracle", "simulation"], default="galileo",
+                    help="galileo: MCMC's estimates (run `recognize label` first); oracle: ground truth; "
+                         "simulation: velocity series simulated from the prior (no video labels)")
+    rt.add_argument("--holdout-fold", type=int, default=0,
+                    help="hold out the objects of this split (0-4) for testing; -1: train on every object")
+    rt.add_argument("--seed", type=int, default=0)
+    rt.add_argument("--out", required=True, help="model file to write (.npz)")
+    rt.add_argument("--quiet", action="store_true")
+    rt.set_defaults(func=cmd_recognize_train)
+    re_ = rsub.add_parser("eval", help="the Fig. 3 table: MSE and correlation against ground truth on held-out "
+                          "objects")
+    re_.add_argument("--dataset", required=True)
+    re_.add_argument("--model", help="score this model on the objects it held out (default: the whole protocol, "
+                     "5 splits, Galileo / oracle / simulation / uniform)")
+    re_.add_argument("--splits", type=int, default=5)
+    re_.add_argument("--seed", type=int, default=0)
+    re_.add_argument("--no-simulation", action="store_true", help="leave the simulation-trained model out")
+    re_.add_argument("--out", required=True, help="folder for table.json, table.md and the scatter PNGs")
+    re_.add_argument("--quiet", action="store_true")
+    re_.set_defaults(func=cmd_recognize_eval)
+    rp = rsub.add_parser("predict", help="mass and friction of a video's objects from its first frame")
+    rp.add_argument("video")
+    rp.add_argument("--scene", required=True, help="scene JSON with the video's camera")
+    rp.add_argument("--model", help="model file (default: the built-in ramp model)")
+    rp.add_argument("--tracks", help="tracks JSON (default: track the video; where nothing moves, read the "
+                    "objects where the scene file puts them)")
+    rp.add_argument("--no-track", action="store_true", help="do not track: read where the scene file puts them")
+    rp.add_argument("--out", help="also write the readings to this JSON file")
+    rp.set_defaults(func=cmd_recognize_predict)
 
     c = sub.add_parser("scenarios", help="list the scenarios with their latents, units and default priors")
     c.add_argument("--json", action="store_true", help="as JSON")

@@ -9,6 +9,13 @@ as soon as it knows its value is below it and return (an upper bound, True): exa
 rejection, since the uniform of the MH test is drawn before the evaluation and the
 decision is the same as with the full value.
 
+An optional independence move (`Independence`, `step_independence`) proposes the whole latent
+vector from a fixed product distribution q (normal, lognormal or uniform per latent) and
+accepts with the Hastings ratio p(x')q(x) / (p(x)q(x')); `sweep(..., independence=q)` makes one
+such move after the single-site updates of every `q.every`-th sweep (without it, sweeps and
+their random streams are unchanged). It uses the same drawn-first uniform and threshold, so
+early rejection stays exact.
+
 State and per-proposal information are NamedTuples over numpy values; the kernel keeps no
 state of its own, so chains are reproducible from (seed, chain index) whatever process
 runs them.
@@ -28,11 +35,11 @@ class MHState(NamedTuple):
 
 
 class MHInfo(NamedTuple):
-    site: int              # which latent was proposed
+    site: int              # which latent was proposed (-1: a joint independence move)
     proposal: np.ndarray   # the proposed position (all latents)
     logdensity: float      # target at the proposal; -inf outside the prior; if early_stop, a bound below the threshold
     accepted: bool
-    width: float           # half-width of the uniform proposal used
+    width: float           # half-width of the uniform proposal used (nan for an independence move)
     early_stop: bool       # the evaluation stopped early (a guaranteed rejection)
 
 
@@ -83,15 +90,119 @@ def step_site(rng: np.random.Generator, state: MHState, site: int, width: float,
     return new, MHInfo(site, proposal, value, accepted, width, early)
 
 
+_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
+_KINDS = ("normal", "lognormal", "uniform")
+
+
+class Independence(NamedTuple):
+    """A product proposal over all latents for the independence move, one component a latent:
+    "normal" (loc, scale of the value), "lognormal" (loc, scale of the log of the value; the
+    value is > 0) or "uniform" (loc = low, scale = high). Used every `every`-th sweep."""
+    kinds: tuple[str, ...]
+    loc: tuple[float, ...]
+    scale: tuple[float, ...]
+    every: int = 1
+
+    def check(self, n_latents: int | None = None) -> Independence:
+        """Raise ValueError (one line) on a bad spec; return self."""
+        n = len(self.kinds)
+        if len(self.loc) != n or len(self.scale) != n:
+            raise ValueError(f"Independence: kinds, loc and scale differ in length ({n}, {len(self.loc)}, {len(self.scale)})")
+        if n == 0:
+            raise ValueError("Independence: no components")
+        if n_latents is not None and n != n_latents:
+            raise ValueError(f"Independence: {n} components for {n_latents} latents")
+        if isinstance(self.every, bool) or not isinstance(self.every, (int, np.integer)) or self.every < 1:
+            raise ValueError(f"Independence: every must be an integer >= 1, got {self.every!r}")
+        for i, (kind, a, b) in enumerate(zip(self.kinds, self.loc, self.scale)):
+            if kind not in _KINDS:
+                raise ValueError(f"Independence: component {i}: unknown kind {kind!r} (one of {', '.join(_KINDS)})")
+            try:
+                a, b = float(a), float(b)
+            except (TypeError, ValueError):
+                raise ValueError(f"Independence: component {i}: loc and scale must be numbers, got {a!r}, {b!r}") from None
+            if not (math.isfinite(a) and math.isfinite(b)):
+                raise ValueError(f"Independence: component {i}: loc and scale must be finite, got {a}, {b}")
+            if kind == "uniform":
+                if not a < b:
+                    raise ValueError(f"Independence: component {i}: uniform needs low < high, got {a}, {b}")
+            elif not b > 0:
+                raise ValueError(f"Independence: component {i}: {kind} needs scale > 0, got {b}")
+        return self
+
+    def sample(self, rng: np.random.Generator) -> np.ndarray:
+        """One draw x ~ q (one random number per component, in order)."""
+        x = np.empty(len(self.kinds))
+        for i, (kind, a, b) in enumerate(zip(self.kinds, self.loc, self.scale)):
+            if kind == "normal":
+                x[i] = rng.normal(a, b)
+            elif kind == "lognormal":
+                x[i] = math.exp(rng.normal(a, b))
+            else:
+                x[i] = rng.uniform(a, b)
+        return x
+
+    def logpdf(self, x: Sequence[float]) -> float:
+        """log q(x), normalised (with the lognormal's Jacobian -log x); -inf outside the support."""
+        total = 0.0
+        for v, kind, a, b in zip(x, self.kinds, self.loc, self.scale):
+            v = float(v)
+            if kind == "normal":
+                z = (v - a) / b
+                total += -0.5 * z * z - math.log(b) - _LOG_SQRT_2PI
+            elif kind == "lognormal":
+                if not v > 0.0:
+                    return -math.inf
+                lv = math.log(v)
+                z = (lv - a) / b
+                total += -0.5 * z * z - math.log(b) - _LOG_SQRT_2PI - lv
+            else:
+                if not a <= v <= b:
+                    return -math.inf
+                total += -math.log(b - a)
+        return total
+
+
+def step_independence(rng: np.random.Generator, state: MHState, q: Independence, logdensity: LogDensity,
+                      bounds: np.ndarray, early_rejection: bool = True, hastings: bool = True) -> tuple[MHState, MHInfo]:
+    """One independence MH update of all latents: x' ~ q, accepted with probability
+    min(1, p(x') q(x) / (p(x) q(x'))). `hastings=False` drops the q terms (a wrong sampler, for
+    tests only). Out-of-bounds proposals are rejected without evaluating the target."""
+    q.check(len(state.position))
+    proposal = q.sample(rng)
+    log_u = math.log(rng.uniform())  # drawn before the evaluation (and always: same stream either way)
+    bounds = np.asarray(bounds, float)
+    if not np.all((bounds[:, 0] <= proposal) & (proposal <= bounds[:, 1])):
+        return state, MHInfo(-1, proposal, -math.inf, False, math.nan, False)
+    log_ratio_q = 0.0
+    if hastings:
+        lq_new = q.logpdf(proposal)
+        if not lq_new > -math.inf:  # a draw on the edge of q's support (probability zero)
+            return state, MHInfo(-1, proposal, -math.inf, False, math.nan, False)
+        log_ratio_q = q.logpdf(state.position) - lq_new  # -inf when x is outside q's support: no move
+    threshold = state.logdensity + log_u - log_ratio_q
+    result = logdensity(proposal, threshold) if early_rejection else logdensity(proposal)
+    value, early = (float(result[0]), bool(result[1])) if isinstance(result, tuple) else (float(result), False)
+    accepted = (not early) and value >= threshold and value > -math.inf
+    new = MHState(proposal, value, state.sweep) if accepted else state
+    return new, MHInfo(-1, proposal, value, accepted, math.nan, early)
+
+
 def sweep(rng: np.random.Generator, state: MHState, logdensity: LogDensity, bounds: np.ndarray,
           proposal: Proposal = Proposal(), early_rejection: bool = True,
-          sites: Sequence[int] | None = None) -> tuple[MHState, list[MHInfo]]:
-    """One sweep: each latent (or each of `sites`) proposed once, in order."""
+          sites: Sequence[int] | None = None, *,
+          independence: Independence | None = None) -> tuple[MHState, list[MHInfo]]:
+    """One sweep: each latent (or each of `sites`) proposed once, in order; then, if
+    `independence` is given and this sweep's number is a multiple of its `every`, one
+    independence move of all latents (its info last, site -1)."""
     number = state.sweep + 1
     infos = []
     for site in (range(len(state.position)) if sites is None else sites):
         state, info = step_site(rng, state, site, proposal.width(number, site), logdensity, bounds,
                                 early_rejection, site in proposal.integer_sites)
+        infos.append(info)
+    if independence is not None and number % independence.every == 0:
+        state, info = step_independence(rng, state, independence, logdensity, bounds, early_rejection)
         infos.append(info)
     return state._replace(sweep=number), infos
 
@@ -102,14 +213,17 @@ def chain_rng(seed: int, chain: int) -> np.random.Generator:
 
 
 def run_chain(seed: int, chain: int, init_position: Sequence[float], logdensity: LogDensity, bounds,
-              n_sweeps: int, proposal: Proposal = Proposal(), early_rejection: bool = True):
+              n_sweeps: int, proposal: Proposal = Proposal(), early_rejection: bool = True, *,
+              independence: Independence | None = None):
     """A whole chain: returns (positions after each sweep (S, D), logdensities (S,), infos)."""
     rng = chain_rng(seed, chain)
     bounds = np.asarray(bounds, float)
     state = init(init_position, logdensity)
+    if independence is not None:
+        independence.check(len(state.position))
     positions, values, infos = [], [], []
     for _ in range(n_sweeps):
-        state, inf = sweep(rng, state, logdensity, bounds, proposal, early_rejection)
+        state, inf = sweep(rng, state, logdensity, bounds, proposal, early_rejection, independence=independence)
         positions.append(state.position.copy())
         values.append(state.logdensity)
         infos.extend(inf)

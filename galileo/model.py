@@ -64,6 +64,16 @@ class Drawing:
     ground_z_m: float | None = 0.0  # a grid at this height, if any
 
 
+@dataclass(frozen=True)
+class Readout:
+    """An object a recognition model reads from one frame (by its tracked role), and the
+    latents its readings are: its mass in kg and its friction coefficient (None: not a latent
+    of this scene)."""
+    role: str
+    mass: str | None = None
+    friction: str | None = None
+
+
 class SceneFile:
     """`save` and `load` for a scenario's scene class (which names its `scenario` and has
     `to_json`): one JSON file, written atomically, read and checked by the scenario."""
@@ -189,6 +199,31 @@ class Scenario(ABC):
     def default_scene(self):
         """A standard scene of this scenario (for `galileo scenarios` and the demo)."""
         return self._part("scene", "default_scene")()
+
+    # -- recognition (Galileo section 4): physical properties read from one frame ---------------
+    def readouts(self, prepared_scene) -> tuple[Readout, ...]:
+        """The objects a recognition model reads in this scene and the latents it starts
+        (default: none; the scenario then has no image recognition)."""
+        return ()
+
+    def recognition_label(self, prepared_scene, tracks: Tracks, values: dict[str, float]) -> dict[str, dict]:
+        """The "Galileo label" of each read object from a MAP: {role: {"mass_kg", "friction"}},
+        None where the video does not identify the quantity. Default: the readout latents."""
+        return {r.role: {"mass_kg": values.get(r.mass) if r.mass else None,
+                         "friction": values.get(r.friction) if r.friction else None}
+                for r in self.readouts(prepared_scene)}
+
+    def recognition_examples(self, folder: str | Path) -> list:
+        """The videos of a rendered dataset as `galileo.recognition.data.Example`s (what to
+        read in which video, the object and group that splits keep together, ground truth)."""
+        from .errors import GalileoError
+
+        raise GalileoError(f"the {self.name} scenario has no recognition dataset")
+
+    def recognition_features(self, prepared_scene) -> np.ndarray:
+        """Numbers describing a prepared scene beyond its latents (angles, sizes) that the
+        simulation-trained recognition model reads beside the tracked velocities."""
+        return np.zeros(0)
 
     # -- the video a scene describes ------------------------------------------------------------
     def camera(self, scene) -> "Camera | None":

@@ -71,6 +71,7 @@ class InferenceResult:
     timing_s: dict
     steps: int
     scene: object                # the scene inferred on (what tracking fixed put in)
+    init: dict | None = None     # how chains started (prior / recognition: the readings) and extra moves
 
     @property
     def map_index(self) -> tuple[int, int]:
@@ -107,6 +108,7 @@ class InferenceResult:
             sel = site == j
             acc[n] = float(accepted[sel].mean()) if sel.any() else None
         return {"r_hat": r_hat, "ess": ess, "acceptance": acc, "acceptance_all": float(accepted.mean()),
+                "sweeps_to_map_1nat": sweeps_to_map(self.logliks),
                 "early_stopped": float(self.proposals["early_stop"].mean()), "physics_steps": int(self.steps),
                 "burn_in_sweeps": burn_in(self.samples.shape[1])}
 
@@ -125,6 +127,7 @@ class InferenceResult:
                   "proposal": {"narrow": _plain(p.narrow), "broad": _plain(p.broad), "broad_every": p.broad_every},
                   "bounds": {k: list(v) for k, v in st.bounds.items()}}
         return {"scenario": self.scenario, "map": self.map, "map_loglik": self.map_loglik, **self.derived(),
+                "init": self.init or {"starts": "prior"},
                 "posterior": self.posterior(), "diagnostics": self.diagnostics(), "timing_s": self.timing_s,
                 "config": config, "latents": list(self.names), "scene": self.scene.to_json(), "samples_file": None}
 
@@ -140,6 +143,24 @@ class InferenceResult:
         d["samples_file"] = npz_path.name
         write_json(result_path, d)
         return npz_path
+
+
+def sweeps_to_map(logliks: np.ndarray, within_nats: float = 1.0, reference: float | None = None) -> dict:
+    """Per chain, the first sweep (1-based) after which its log-likelihood is within
+    `within_nats` of the run's MAP (or of `reference`); None if it never is (Galileo Fig. 4's
+    measure). The median counts chains that never get there as slower than any that do
+    (None when more than half never do)."""
+    ll = np.asarray(logliks, float)
+    target = (float(ll.max()) if reference is None else float(reference)) - within_nats
+    per_chain = []
+    for row in ll:
+        hit = np.flatnonzero(row >= target)
+        per_chain.append(int(hit[0]) + 1 if len(hit) else None)
+    ranks = np.array([np.inf if v is None else v for v in per_chain], float)
+    med = float(np.median(ranks)) if len(ranks) else None
+    return {"per_chain": per_chain, "median": med if med is not None and np.isfinite(med) else None,
+            "never": float(np.mean([v is None for v in per_chain])) if per_chain else None,
+            "within_nats": within_nats}
 
 
 def _plain(w):

@@ -185,6 +185,7 @@ class ChainTask(NamedTuple):
     proposal: Proposal
     noise: float
     speedups: bool = True
+    independence: object = None   # a galileo.mcmc.Independence: an extra joint move (e.g. from a recognition model)
 
 
 # per-proposal record fields: name -> (dtype, one row of D values per proposal)
@@ -225,7 +226,11 @@ def run_task(task: ChainTask) -> dict:
     state = MHState(pos, float(logdensity), int(task.sweep))
     positions, logliks, infos = [], [], []
     for _ in range(task.n_sweeps):
-        state, inf = sweep(rng, state, lik, task.bounds, task.proposal, task.speedups)
+        if task.independence is None:
+            state, inf = sweep(rng, state, lik, task.bounds, task.proposal, task.speedups)
+        else:
+            state, inf = sweep(rng, state, lik, task.bounds, task.proposal, task.speedups,
+                               independence=task.independence)
         positions.append(state.position.copy())
         logliks.append(state.logdensity)
         infos.extend(inf)
@@ -243,10 +248,11 @@ def run_task(task: ChainTask) -> dict:
 
 
 def first_task(problem: Problem, chain: int, start, seed: int, n_sweeps: int, settings: Settings,
-               names: Sequence[str], speedups: bool = True) -> ChainTask:
+               names: Sequence[str], speedups: bool = True, independence=None) -> ChainTask:
     """The task that starts chain `chain` of a run seeded with `seed` at `start`."""
     return ChainTask(problem, chain, np.asarray(start, float), None, 0, chain_rng(seed, chain).bit_generator.state,
-                     n_sweeps, settings.bounds_array(names), settings.proposal(), settings.noise, speedups)
+                     n_sweeps, settings.bounds_array(names), settings.proposal(), settings.noise, speedups,
+                     independence)
 
 
 # -- executors ---------------------------------------------------------------------------------------
@@ -316,9 +322,14 @@ def local_executor(workers: int | None, n_tasks: int | None = None):
 
 # -- the batch run -----------------------------------------------------------------------------------
 
-def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=None, progress: bool = True):
+def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=None, progress: bool = True,
+          init=None):
     """Run `config.chains` chains of `config.sweeps` sweeps on a video's tracks; an
-    `InferenceResult` (MAP, posterior, diagnostics, every proposal)."""
+    `InferenceResult` (MAP, posterior, diagnostics, every proposal).
+
+    `init(prepared_scene, names, bounds, n_chains, seed, integer_sites) -> Init` may choose where the chains start and add
+    an independence move (`galileo.recognition.model.recognition_init`); by default chains
+    start where the scenario says (drawn from the prior)."""
     cfg = config or RunConfig()
     cfg.check()
     t0 = time.perf_counter()
@@ -330,9 +341,17 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
         settings = cfg.settings(latents, scenario.noise)
     except ValueError as e:
         raise GalileoError(str(e)) from None
-    starts = scenario.initial_positions(prepared, latents, settings.bounds_array(names), cfg.chains, cfg.seed)
+    bounds = settings.bounds_array(names)
+    chosen = init(prepared, names, bounds, cfg.chains, cfg.seed, settings.integer_sites) if init is not None else None
+    if chosen is not None and chosen.starts is not None:
+        starts = np.asarray(chosen.starts, float)
+        if starts.shape != (cfg.chains, len(names)) or not np.all((starts >= bounds[:, 0]) & (starts <= bounds[:, 1])):
+            raise GalileoError("chain starts must be one point per chain inside the prior's bounds")
+    else:
+        starts = scenario.initial_positions(prepared, latents, bounds, cfg.chains, cfg.seed)
+    move = chosen.independence if chosen is not None else None
     problem = Problem.of(scene, tracks)
-    tasks = [first_task(problem, c, starts[c], cfg.seed, cfg.sweeps, settings, names, cfg.speedups)
+    tasks = [first_task(problem, c, starts[c], cfg.seed, cfg.sweeps, settings, names, cfg.speedups, move)
              for c in range(cfg.chains)]
     own = executor is None
     if own:
@@ -355,4 +374,13 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
         logliks=np.stack([r["logliks"] for r in results]), starts=starts, proposals=proposals, config=cfg,
         settings=settings, timing_s={"wall": wall, "chains_cpu": float(sum(r["seconds"] for r in results)),
                                      "workers": workers},
-        steps=int(sum(r["steps"] for r in results)), scene=prepared)
+        steps=int(sum(r["steps"] for r in results)), scene=prepared,
+        init=chosen.info if chosen is not None else {"starts": "prior"})
+
+
+@dataclass
+class Init:
+    """Where chains start and an optional extra move, chosen for a run (see `infer`'s `init`)."""
+    starts: np.ndarray | None = None      # (chains, D), inside the prior's bounds
+    independence: object = None          # a galileo.mcmc.Independence used every `every` sweeps
+    info: dict = field(default_factory=dict)   # what result.json records about it

@@ -123,6 +123,24 @@ class _Chain:
                 "n_proposals": len(self.proposals["site"])}
 
 
+def _checked_init(info: dict, dim: int) -> dict:
+    """A session's recorded init, its proposal checked (a damaged one starts later chains
+    from the prior instead)."""
+    q = info.get("proposal")
+    if q is not None:
+        from galileo.mcmc import Independence
+
+        try:
+            Independence(tuple(q["kinds"]), tuple(float(x) for x in q["loc"]),
+                         tuple(float(x) for x in q["scale"])).check()
+            if len(q["kinds"]) != dim:
+                raise ValueError("length")
+        except (KeyError, TypeError, ValueError):
+            log.warning("the session's recorded recognition proposal is damaged; new chains start from the prior")
+            return {k: v for k, v in info.items() if k != "proposal"}
+    return info
+
+
 # -- the controller ------------------------------------------------------------------------------------------
 
 class Controller:
@@ -130,9 +148,11 @@ class Controller:
 
     def __init__(self, scene, tracks: Tracks, *, chains: int = 16, seed: int = 0,
                  workers: int | None = None, settings: Settings | None = None,
-                 session_dir: str | Path | None = None, save_every_s: float = 1.0, executor=None):
+                 session_dir: str | Path | None = None, save_every_s: float = 1.0, executor=None, init=None):
         """`executor`: anything with `map` (default: a `galileo.runner.LocalPool` of `workers`
-        processes, always separate processes: the viewer simulates in this one)."""
+        processes, always separate processes: the viewer simulates in this one). `init`: as
+        `galileo.runner.infer`'s (e.g. `galileo.recognition.model.recognition_init`): its
+        proposal decides where this and every later chain starts (recorded in the session)."""
         if isinstance(chains, bool) or int(chains) != chains or chains < 0:
             raise ValueError(f"chains must be an integer >= 0, got {chains!r}")
         if isinstance(seed, bool) or int(seed) != seed or seed < 0:
@@ -147,11 +167,16 @@ class Controller:
                 raise GalileoError(f"{session_dir} already holds a session; open it with Controller.load")
         self._setup(scene, tracks, latents, int(seed), workers, settings, session_dir, save_every_s, executor)
         self._likelihood_scene = lik_scene
+        if init is not None:
+            chosen = init(lik_scene, self.names, self._bounds_array(), max(int(chains), 1), self.seed,
+                          self._settings.integer_sites)
+            self.init_info = dict(chosen.info)
         with self._lock:
             ids = list(range(int(chains)))
             self._create_chains(ids)
             self._event("init", {"seed": self.seed, "chains": ids, "settings": self._settings.to_json(),
-                                 "starts": {str(c): self._chains[c].start.tolist() for c in ids}})
+                                 "starts": {str(c): self._chains[c].start.tolist() for c in ids},
+                                 "init": self.init_info})
         if self.session_dir is not None:
             self.session_dir.mkdir(parents=True, exist_ok=True)
             sess.write_static(self.session_dir, self._scene_json, self._tracks_json)
@@ -196,6 +221,7 @@ class Controller:
         self._error: str | None = None
         self._dirty = True
         self._last_save = -math.inf
+        self.init_info: dict = {"starts": "prior"}   # how chains start (recognition: its readings and proposal)
 
     # -- workers ------------------------------------------------------------------------------------------
     def _start_pool(self):
@@ -497,8 +523,16 @@ class Controller:
         if not ids:
             return
         bounds = self._bounds_array()
-        starts = self.scenario.initial_positions(self.likelihood_scene, self.latents, bounds, max(ids) + 1,
-                                                 self.seed)
+        q = self.init_info.get("proposal")
+        if q:   # started from a recognition model's reading: chain c's start is its own draw from it
+            from galileo.mcmc import Independence
+            from galileo.recognition.model import chain_starts
+
+            starts = chain_starts(Independence(tuple(q["kinds"]), tuple(q["loc"]), tuple(q["scale"])), bounds,
+                                  max(ids) + 1, self.seed, self._settings.integer_sites)
+        else:
+            starts = self.scenario.initial_positions(self.likelihood_scene, self.latents, bounds, max(ids) + 1,
+                                                     self.seed)
         for c in ids:
             self._chains[c] = _Chain(c, starts[c], chain_rng(self.seed, c).bit_generator.state, len(self.names))
         self._next_id = max(self._next_id, max(ids) + 1)
@@ -602,6 +636,11 @@ class Controller:
         if ch is None and not (isinstance(chain, (int, np.integer)) and 0 <= chain < self._next_id):
             raise ValueError(f"no chain {chain!r}")
         return ch   # None: added, created after the round in flight
+
+    def starts(self) -> dict[int, np.ndarray]:
+        """Where each chain (removed ones too) started."""
+        with self._lock:
+            return {c: ch.start.copy() for c, ch in sorted(self._chains.items())}
 
     def samples(self, chain: int) -> np.ndarray:
         """(S, D): the chain's state after each of its sweeps."""
@@ -766,6 +805,9 @@ class Controller:
         self._setup(scene, tracks, latents, seed, workers, settings, folder, save_every_s, executor)
         self._rounds, self._next_id, self._steps = rounds, next_id, steps
         self._events = events[:n_events]
+        first = next((e for e in self._events if e["kind"] == "init"), None)
+        if first is not None and isinstance(first.get("detail"), dict) and isinstance(first["detail"].get("init"), dict):
+            self.init_info = _checked_init(first["detail"]["init"], len(names))
         dim = len(names)
         for d in chain_docs:
             with sess.reading(folder / sess.CHAINS_FILE):

@@ -55,6 +55,36 @@ def _wxyz_from_xyzw(q) -> np.ndarray:
     return np.array([q[3], q[0], q[1], q[2]])
 
 
+def init_markdown(info: dict, names) -> str:
+    """How the chains started, for the Chains panel: the prior, or what the recognition model
+    read (per object: mass and friction with 90% intervals)."""
+    if info.get("starts") != "recognition":
+        return "Chains started from the prior."
+    parts = [f"Chains started from the recognition model ({info.get('kind') or 'lenet'}, "
+             f"{info.get('labels') or '?'} labels):"]
+    for role, r in (info.get("readings") or {}).items():
+        if isinstance(r, dict) and "mass_kg" in r:
+            parts.append(f"{role}: mass {r['mass_kg']:.3g} kg (90% {r['mass_kg_90'][0]:.3g}-{r['mass_kg_90'][1]:.3g}), "
+                         f"friction {r['friction']:.3f} ({r['friction_90'][0]:.3f}-{r['friction_90'][1]:.3f})")
+    return "  \n".join(parts)
+
+
+def recognition_curves(info: dict, names) -> dict:
+    """Latent name -> the recognition proposal's density (a function of the latent's value),
+    for the latents it reads (its uniform components are the prior's and are not drawn)."""
+    q = info.get("proposal") if info.get("starts") == "recognition" else None
+    out = {}
+    if not q:
+        return out
+    for n, kind, loc, scale in zip(names, q["kinds"], q["loc"], q["scale"]):
+        if kind == "normal":
+            out[n] = lambda x, m=loc, s=scale: np.exp(-0.5 * ((x - m) / s) ** 2)
+        elif kind == "lognormal":
+            out[n] = lambda x, m=loc, s=scale: np.where(
+                x > 0, np.exp(-0.5 * ((np.log(np.maximum(x, 1e-300)) - m) / s) ** 2) / np.maximum(x, 1e-300), 0.0)
+    return out
+
+
 def camera_pose(cam: Camera) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Viser camera pose for the video camera: (wxyz, position, vertical fov, aspect).
 
@@ -217,11 +247,17 @@ class Viewer:
                                                                        uplot.Series(label="chain 0")),
                                           title="log-likelihood per chain", aspect=1.6,
                                           scales={"x": uplot.Scale(time=False)})
-            self.hist_plots = {n: g.add_uplot((np.zeros(1), np.zeros(1)),
-                                              (uplot.Series(label=n), uplot.Series(label="count", stroke="#444",
-                                                                                   fill="#4363d855")),
-                                              title=f"posterior {n}", aspect=2.5,
-                                              scales={"x": uplot.Scale(time=False)}) for n in ctrl.names}
+            self.init_text = g.add_markdown(init_markdown(ctrl.init_info, ctrl.names))
+            self._recognized = recognition_curves(ctrl.init_info, ctrl.names)
+            self.hist_plots = {}
+            for n in ctrl.names:
+                series = [uplot.Series(label=n), uplot.Series(label="count", stroke="#444", fill="#4363d855"),
+                          uplot.Series(label="chain starts (x 10)", stroke="#e6194b", width=2)]
+                if n in self._recognized:
+                    series.append(uplot.Series(label="recognition (scaled)", stroke="#f58231", width=2))
+                zeros = (np.zeros(1),) * len(series)
+                self.hist_plots[n] = g.add_uplot(zeros, tuple(series), title=f"posterior {n}", aspect=2.5,
+                                                 scales={"x": uplot.Scale(time=False)})
         specs = {lat.name: lat for lat in ctrl.latents}
         with g.add_folder("Priors and settings", expand_by_default=False):
             st = ctrl.settings
@@ -378,8 +414,11 @@ class Viewer:
             self._pose_objects(self.frame)
             self._update_sim_lines()
             ll = self.ctrl.logliks(chain)[index] if len(samples) else float("nan")
+            start = self.ctrl.starts().get(chain)
+            started = ("" if start is None else "; started at " + ", ".join(
+                f"{k} = {self._fmt(k, v)}" for k, v in zip(self.ctrl.names, start)))
             self.sample_text.content = (f"chain {chain}, sample {index}: " + ", ".join(
-                f"{k} = {self._fmt(k, v)}" for k, v in (values or {}).items()) + f"; log-lik {ll:.1f}")
+                f"{k} = {self._fmt(k, v)}" for k, v in (values or {}).items()) + f"; log-lik {ll:.1f}" + started)
             self.last_resim_s = time.perf_counter() - t0
         return self.last_resim_s
 
@@ -526,15 +565,24 @@ class Viewer:
         if kept is None:
             return
         bounds = ctrl.settings.bounds
+        starts = np.array(list(ctrl.starts().values()), float).reshape(-1, len(ctrl.names))
         for j, n in enumerate(ctrl.names):
             lo, hi = bounds[n]
             if j in self._integer:   # one bin per integer, at the integer (30 bins over 5..30 leave gaps)
                 ks = np.arange(np.ceil(lo), np.floor(hi) + 1)
-                counts, _ = np.histogram(kept[:, j], bins=np.append(ks - 0.5, ks[-1] + 0.5)) if len(ks) else ([], [])
-                self.hist_plots[n].data = (ks.astype(float), np.asarray(counts, float))
-                continue
-            counts, edges = np.histogram(kept[:, j], bins=30, range=(lo, hi))
-            self.hist_plots[n].data = (edges[:-1].astype(float), counts.astype(float))
+                edges = np.append(ks - 0.5, ks[-1] + 0.5) if len(ks) else np.array([lo, hi])
+                x = ks.astype(float) if len(ks) else np.array([lo])
+            else:
+                edges = np.linspace(lo, hi, 31)
+                x = edges[:-1].astype(float)
+            counts = np.histogram(kept[:, j], bins=edges)[0].astype(float)
+            # where the chains started (counts x 10, so 16 chains show beside thousands of draws)
+            started = 10.0 * np.histogram(starts[:, j], bins=edges)[0].astype(float)
+            data = [x, counts, started]
+            if n in self._recognized:   # the recognition model's density, its peak at the posterior's
+                dens = self._recognized[n](x + (edges[1] - edges[0]) / 2)
+                data.append(dens / max(float(dens.max()), 1e-300) * max(float(counts.max()), 1.0))
+            self.hist_plots[n].data = tuple(data)
 
     def _play_loop(self) -> None:
         while not self._stop.is_set():

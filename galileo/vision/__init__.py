@@ -11,6 +11,7 @@
 * `tracker`: one object's features, their 3-D points on the object and its pose per frame.
 * `velocity`: velocities from positions (central differences that keep a jump sharp).
 * `shapenet`: the shape-type CNN and the appearance crop it reads.
+* `patch`: scale-normalised object patches (a square of fixed metres) for the recognition model.
 * `draw`: tracks drawn over frames (debug videos).
 
 A scenario's tracking (e.g. `galileo.scenarios.ramp.tracking`) puts these together; only

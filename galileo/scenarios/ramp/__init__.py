@@ -72,6 +72,26 @@ class RampScenario(Scenario):
         return ", ".join(f"{k} = {v:.3f}" for k, v in values.items()) + (
             f", m1/m2 = {ratio:.2f}" if ratio is not None else "")
 
+    def readouts(self, prepared_scene):
+        from .recognition import readouts
+
+        return readouts(prepared_scene)
+
+    def recognition_label(self, prepared_scene, tracks, values):
+        from .recognition import label
+
+        return label(prepared_scene, tracks, values)
+
+    def recognition_examples(self, folder):
+        from .recognition import examples
+
+        return examples(Path(folder))
+
+    def recognition_features(self, prepared_scene):
+        from .recognition import features
+
+        return features(prepared_scene)
+
     def predict(self, result_path: str | Path, questions: dict) -> dict:
         from ...errors import GalileoError
         from .predict import Prediction
