@@ -261,9 +261,10 @@ def cmd_recognize_predict(args: argparse.Namespace) -> int:
         write_json(args.out, out)
     for role, r in readings.items():
         j = r.to_json()
+        fr = (f"friction {j['friction']:.3f} (90%: {j['friction_90'][0]:.3f}-{j['friction_90'][1]:.3f}), "
+              if "friction" in j else "")
         print(f"{role}: mass {j['mass_kg']:.3g} kg (90%: {j['mass_kg_90'][0]:.3g}-{j['mass_kg_90'][1]:.3g}), "
-              f"friction {j['friction']:.3f} (90%: {j['friction_90'][0]:.3f}-{j['friction_90'][1]:.3f}), "
-              f"from {r.patches} patch(es)")
+              f"{fr}from {r.patches} patch(es)")
     return 0
 
 

@@ -67,11 +67,13 @@ class Drawing:
 @dataclass(frozen=True)
 class Readout:
     """An object a recognition model reads from one frame (by its tracked role), and the
-    latents its readings are: its mass in kg and its friction coefficient (None: not a latent
-    of this scene)."""
+    latents its readings are: its mass and its friction coefficient (None: not a latent of
+    this scene). `mass_per_kg` is the mass latent's value per kilogram of the object: 1 for a
+    mass in kg, 1 / (1000 V) for a density in g/cm^3 of an object of V m^3."""
     role: str
     mass: str | None = None
     friction: str | None = None
+    mass_per_kg: float = 1.0
 
 
 class SceneFile:
@@ -201,6 +203,9 @@ class Scenario(ABC):
         return self._part("scene", "default_scene")()
 
     # -- recognition (Galileo section 4): physical properties read from one frame ---------------
+    # the mass range mapped to 0..1 on the recognition model's log-normalised scale
+    recognition_mass_range_kg: tuple[float, float] = (0.005, 0.2)
+
     def readouts(self, prepared_scene) -> tuple[Readout, ...]:
         """The objects a recognition model reads in this scene and the latents it starts
         (default: none; the scenario then has no image recognition)."""

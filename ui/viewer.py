@@ -64,8 +64,10 @@ def init_markdown(info: dict, names) -> str:
              f"{info.get('labels') or '?'} labels):"]
     for role, r in (info.get("readings") or {}).items():
         if isinstance(r, dict) and "mass_kg" in r:
-            parts.append(f"{role}: mass {r['mass_kg']:.3g} kg (90% {r['mass_kg_90'][0]:.3g}-{r['mass_kg_90'][1]:.3g}), "
-                         f"friction {r['friction']:.3f} ({r['friction_90'][0]:.3f}-{r['friction_90'][1]:.3f})")
+            fr = (f", friction {r['friction']:.3f} ({r['friction_90'][0]:.3f}-{r['friction_90'][1]:.3f})"
+                  if "friction" in r else "")
+            parts.append(f"{role}: mass {r['mass_kg']:.3g} kg (90% {r['mass_kg_90'][0]:.3g}-{r['mass_kg_90'][1]:.3g})"
+                         + fr)
     return "  \n".join(parts)
 
 

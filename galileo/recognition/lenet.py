@@ -6,9 +6,9 @@ so its size in metres shows), scaled to (x / 255 - 0.5) / 0.25. Layers, as LeNet
 - ReLU - fully connected 120 -> 4. The four outputs are a Gaussian per quantity (mean and
 log-variance) for
 
-* mass on the log-normalised scale: y = ln(m / m_lo) / ln(m_hi / m_lo), (m_lo, m_hi) =
-  `MASS_RANGE_KG` (0.005 kg -> 0, 0.2 kg -> 1: the catalogue's lightest and heaviest objects,
-  rounded), and
+* mass on the log-normalised scale: y = ln(m / m_lo) / ln(m_hi / m_lo), (m_lo, m_hi) the
+  scenario's `recognition_mass_range_kg` (the ramp's: 0.005 kg -> 0, 0.2 kg -> 1, its
+  catalogue's lightest and heaviest objects rounded; `MASS_RANGE_KG`), and
 * the friction coefficient itself.
 
 Loss: the Gaussian negative log-likelihood over the labels a patch has (a video without a

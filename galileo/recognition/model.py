@@ -30,8 +30,8 @@ class Reading:
     role: str
     log_mass: float
     log_mass_sd: float
-    friction: float
-    friction_sd: float
+    friction: float | None      # None: the model never learnt friction (no labels: e.g. splash)
+    friction_sd: float | None
     patches: int
 
     @property
@@ -39,12 +39,14 @@ class Reading:
         return math.exp(self.log_mass)   # the median of the log-normal
 
     def to_json(self) -> dict:
-        return {"role": self.role, "mass_kg": self.mass_kg,
-                "mass_kg_90": [math.exp(self.log_mass - Z90 * self.log_mass_sd),
-                               math.exp(self.log_mass + Z90 * self.log_mass_sd)],
-                "log_mass_sd": self.log_mass_sd, "friction": self.friction,
-                "friction_90": [self.friction - Z90 * self.friction_sd, self.friction + Z90 * self.friction_sd],
-                "friction_sd": self.friction_sd, "patches": self.patches}
+        d = {"role": self.role, "mass_kg": self.mass_kg,
+             "mass_kg_90": [math.exp(self.log_mass - Z90 * self.log_mass_sd),
+                            math.exp(self.log_mass + Z90 * self.log_mass_sd)],
+             "log_mass_sd": self.log_mass_sd, "patches": self.patches}
+        if self.friction is not None:
+            d.update({"friction": self.friction, "friction_sd": self.friction_sd,
+                      "friction_90": [self.friction - Z90 * self.friction_sd, self.friction + Z90 * self.friction_sd]})
+        return d
 
 
 class LeNetModel:
@@ -94,8 +96,9 @@ class LeNetModel:
         mean, sd = lenet.predict(self.states, patches_u8)
         m, s = lenet.pool(mean, sd)
         scale = math.log(self.mass_range_kg[1] / self.mass_range_kg[0])
+        friction = "friction" in self.meta.get("quantities", ("mass_kg", "friction"))
         return Reading(role, math.log(self.mass_range_kg[0]) + float(m[0]) * scale, float(s[0]) * scale,
-                       float(m[1]), float(s[1]), int(len(patches_u8)))
+                       float(m[1]) if friction else None, float(s[1]) if friction else None, int(len(patches_u8)))
 
     def read_video(self, video, scene, tracks=None) -> dict[str, Reading]:
         """A Reading per object the scenario reads (`Scenario.readouts`) in the video."""
@@ -169,8 +172,8 @@ def independence(readings: dict[str, Reading], scenario, prepared_scene, names, 
             continue
         if r.mass in names:
             j = names.index(r.mass)
-            kinds[j], loc[j], scale[j] = "lognormal", rd.log_mass, max(rd.log_mass_sd, 1e-3)
-        if r.friction in names:
+            kinds[j], loc[j], scale[j] = "lognormal", rd.log_mass + math.log(r.mass_per_kg), max(rd.log_mass_sd, 1e-3)
+        if r.friction in names and rd.friction is not None:
             j = names.index(r.friction)
             kinds[j], loc[j], scale[j] = "normal", rd.friction, max(rd.friction_sd, 1e-3)
     q = Independence(tuple(kinds), tuple(loc), tuple(scale), every)

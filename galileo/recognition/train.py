@@ -100,11 +100,13 @@ def train_model(folder: str | Path, labels: str = "galileo", *, holdout_fold: in
         train, test = split(examples, holdout_fold, folds, seed)
     if patch_by_name is None:
         patch_by_name = collect_patches(train, progress)
-    x, y = training_arrays(train, patch_by_name, label_values, lenet.MASS_RANGE_KG)
+    mass_range = registry.get(scenario).recognition_mass_range_kg
+    x, y = training_arrays(train, patch_by_name, label_values, mass_range)
     t0 = time.perf_counter()
     trained = lenet.train(x, y, seed=seed, members=members, epochs=epochs, progress=progress,
                           desc=f"LeNet on {labels} labels")
-    meta = {"scenario": scenario, "labels": labels, "mass_range_kg": list(lenet.MASS_RANGE_KG),
+    meta = {"scenario": scenario, "labels": labels, "mass_range_kg": list(mass_range),
+            "quantities": [q for j, q in enumerate(QUANTITIES) if np.isfinite(y[:, j]).any()],
             "mass_scale": "y = ln(m / m_lo) / ln(m_hi / m_lo)", "patch": {"side_m": _patch_side(), "size_px": 32},
             "input": "3x32x32 RGB, (x / 255 - 0.5) / 0.25", "loss": "Gaussian negative log-likelihood",
             "architecture": "LeNet-5: conv5x5(6)-relu-pool2-conv5x5(16)-relu-pool2-fc(120)-relu-fc(4)",
@@ -155,24 +157,26 @@ def score(rows: dict[str, dict]) -> dict:
     """MSE and Pearson against the truth per quantity, and the share of test objects whose
     true value lies in the model's 90% interval (models that give one)."""
     v = list(rows.values())
-    out = {"mass": metrics([r["y_mass"] for r in v], [r["true_y_mass"] for r in v]),
-           "friction": metrics([r["friction"] for r in v], [r["true_friction"] for r in v]),
-           "objects": len(v)}
+    z = 1.6448536269514722
+    out = {"mass": metrics([r["y_mass"] for r in v], [r["true_y_mass"] for r in v]), "objects": len(v)}
     if v and all(r.get("log_mass_sd") is not None for r in v):
-        z = 1.6448536269514722
         out["mass"]["coverage90"] = float(np.mean([abs(math.log(r["true_mass_kg"] / r["mass_kg"]))
                                                    <= z * r["log_mass_sd"] for r in v]))
-        out["friction"]["coverage90"] = float(np.mean([abs(r["true_friction"] - r["friction"]) <= z * r["friction_sd"]
-                                                       for r in v]))
+    if v and all(r.get("friction") is not None and r.get("true_friction") is not None for r in v):
+        out["friction"] = metrics([r["friction"] for r in v], [r["true_friction"] for r in v])
+        if all(r.get("friction_sd") is not None for r in v):
+            out["friction"]["coverage90"] = float(np.mean([abs(r["true_friction"] - r["friction"])
+                                                           <= z * r["friction_sd"] for r in v]))
     return out
 
 
-def uniform_rows(rows: dict[str, dict]) -> dict[str, dict]:
+def uniform_rows(rows: dict[str, dict], mass_range) -> dict[str, dict]:
     """The paper's baseline: every test object gets the mean of the test objects' truths."""
     ym = float(np.mean([r["true_y_mass"] for r in rows.values()]))
-    fr = float(np.mean([r["true_friction"] for r in rows.values()]))
-    return {o: {**r, "y_mass": ym, "friction": fr, "mass_kg": float(lenet.y_to_mass(ym)), "log_mass_sd": None,
-                "friction_sd": None} for o, r in rows.items()}
+    frs = [r["true_friction"] for r in rows.values() if r["true_friction"] is not None]
+    fr = float(np.mean(frs)) if frs else None
+    return {o: {**r, "y_mass": ym, "friction": fr, "mass_kg": float(lenet.y_to_mass(ym, mass_range)),
+                "log_mass_sd": None, "friction_sd": None} for o, r in rows.items()}
 
 
 def figure3(folder: str | Path, out_dir: str | Path, *, folds: int = FOLDS, seed: int = 0,
@@ -188,6 +192,7 @@ def figure3(folder: str | Path, out_dir: str | Path, *, folds: int = FOLDS, seed
         from .simulation import fig3_rows
 
         extra_models["simulation"] = fig3_rows(folder, seed=seed, progress=progress)
+    mass_range = registry.get(scenario).recognition_mass_range_kg
     label_values = {src: read_labels(folder, src, examples) for src in ("galileo", "oracle")}
     patch_by_name = collect_patches(examples, progress)
     per_fold: dict[str, list] = {}
@@ -197,12 +202,14 @@ def figure3(folder: str | Path, out_dir: str | Path, *, folds: int = FOLDS, seed
         train, test = split(examples, fold, folds, seed)
         fold_rows = {}
         for src in ("galileo", "oracle"):
-            x, y = training_arrays(train, patch_by_name, label_values[src], lenet.MASS_RANGE_KG)
+            x, y = training_arrays(train, patch_by_name, label_values[src], mass_range)
             trained = lenet.train(x, y, seed=seed + fold, members=members, epochs=epochs, progress=progress,
                                   desc=f"split {fold + 1}/{folds}: {src}")
-            model = LeNetModel({"scenario": scenario, "mass_range_kg": list(lenet.MASS_RANGE_KG)}, trained.states)
+            model = LeNetModel({"scenario": scenario, "mass_range_kg": list(mass_range),
+                                "quantities": [q for j, q in enumerate(QUANTITIES) if np.isfinite(y[:, j]).any()]},
+                               trained.states)
             fold_rows[src] = predict_objects(model, test, patch_by_name)
-        fold_rows["uniform"] = uniform_rows(fold_rows["oracle"])
+        fold_rows["uniform"] = uniform_rows(fold_rows["oracle"], mass_range)
         for name, fn in extra_models.items():
             fold_rows[name] = fn(train, test, fold)
         for name, rows in fold_rows.items():
@@ -210,17 +217,19 @@ def figure3(folder: str | Path, out_dir: str | Path, *, folds: int = FOLDS, seed
             for o, r in rows.items():
                 rows_all.setdefault(name, {})[o] = {**r, "fold": fold}
     table = {"scenario": scenario, "dataset": str(folder), "folds": folds, "seed": seed,
-             "mass_scale": {"y": "ln(m / m_lo) / ln(m_hi / m_lo)", "mass_range_kg": list(lenet.MASS_RANGE_KG)},
+             "mass_scale": {"y": "ln(m / m_lo) / ln(m_hi / m_lo)", "mass_range_kg": list(mass_range)},
              "seconds": time.perf_counter() - t0, "paper_mass": PAPER, "models": {}}
     for name, scores in per_fold.items():
         entry = {}
         for q in ("mass", "friction"):
+            if not all(q in s for s in scores):
+                continue
             for m in ("mse", "pearson"):
                 vals = [s[q][m] for s in scores]
                 entry[f"{q}_{m}"] = {"mean": float(np.mean(vals)), "sd": float(np.std(vals, ddof=1)) if len(vals) > 1
                                      else 0.0, "per_split": vals}
         for q in ("mass", "friction"):
-            cov = [s[q]["coverage90"] for s in scores if "coverage90" in s[q]]
+            cov = [s[q]["coverage90"] for s in scores if q in s and "coverage90" in s[q]]
             if cov:
                 entry[f"{q}_coverage90"] = {"mean": float(np.mean(cov)), "per_split": cov}
         entry["test_objects_per_split"] = [s["objects"] for s in scores]
@@ -248,7 +257,7 @@ def evaluate_model(folder: str | Path, model_path: str | Path, out_dir: str | Pa
     if not test:
         raise GalileoError(f"none of the objects {model_path} held out is in {folder}")
     rows = predict_objects(model, test, collect_patches(test, progress))
-    rows_all = {model.meta.get("labels", "model"): rows, "uniform": uniform_rows(rows)}
+    rows_all = {model.meta.get("labels", "model"): rows, "uniform": uniform_rows(rows, model.mass_range_kg)}
     table = {"scenario": scenario, "dataset": str(folder), "model": str(model_path), "folds": 1,
              "seed": model.meta.get("seed"),
              "mass_scale": {"y": "ln(m / m_lo) / ln(m_hi / m_lo)", "mass_range_kg": list(model.mass_range_kg)},
@@ -256,8 +265,8 @@ def evaluate_model(folder: str | Path, model_path: str | Path, out_dir: str | Pa
     for name, r in rows_all.items():
         sc = score(r)
         table["models"][name] = {f"{q}_{m}": {"mean": sc[q][m], "sd": 0.0, "per_split": [sc[q][m]]}
-                                 for q in ("mass", "friction") for m in ("mse", "pearson", "coverage90")
-                                 if m in sc[q]}
+                                 for q in ("mass", "friction") if q in sc
+                                 for m in ("mse", "pearson", "coverage90") if m in sc[q]}
         table["models"][name]["test_objects_per_split"] = [sc["objects"]]
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json(out_dir / "table.json", table)
@@ -281,9 +290,11 @@ def markdown(table: dict) -> str:
         p = f"{paper['mse']:.3f} / {paper['pearson']:.2f}" if paper else "-"
 
         def f(key, digits):
-            return f"{e[key]['mean']:.{digits}f} +- {e[key]['sd']:.{digits}f}"
-        cov = (f"{100 * e['mass_coverage90']['mean']:.0f}%, {100 * e['friction_coverage90']['mean']:.0f}%"
-               if "mass_coverage90" in e else "-")
+            return f"{e[key]['mean']:.{digits}f} +- {e[key]['sd']:.{digits}f}" if key in e else "-"
+
+        def pct(key):
+            return f"{100 * e[key]['mean']:.0f}%" if key in e else "-"
+        cov = f"{pct('mass_coverage90')}, {pct('friction_coverage90')}"
         lines.append(f"| {name} | {f('mass_mse', 3)} | {f('mass_pearson', 2)} | {p} | {f('friction_mse', 4)} | "
                      f"{f('friction_pearson', 2)} | {cov} |")
     lines += ["", "uniform: every test object gets the mean of the test objects' true values (its correlation "
@@ -302,8 +313,11 @@ def scatter(rows_all: dict[str, dict], path: Path, quantity: str) -> None:
     for name, rows in rows_all.items():
         v = list(rows.values())
         if quantity == "mass":
-            x, y = [r["true_mass_kg"] for r in v], [lenet.y_to_mass(r["y_mass"]) for r in v]
+            x, y = [r["true_mass_kg"] for r in v], [r["mass_kg"] for r in v]
         else:
+            v = [r for r in v if r.get("friction") is not None and r.get("true_friction") is not None]
+            if not v:
+                continue
             x, y = [r["true_friction"] for r in v], [r["friction"] for r in v]
         ax.scatter(x, y, s=18, marker=markers.get(name, "o"), alpha=0.75, label=name)
     lo = min(ax.get_xlim()[0], ax.get_ylim()[0])
