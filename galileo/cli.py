@@ -215,7 +215,7 @@ def cmd_recognize_train(args: argparse.Namespace) -> int:
                             seed=args.seed, progress=not args.quiet)
     model.save(args.out)
     m = model.meta
-    print(f"wrote {args.out}: {m.get('kind', 'lenet')} on {args.labels} labels, {len(m['train_objects'])} training "
+    print(f"wrote {args.out}: {model.kind} model on {args.labels} labels, {len(m['train_objects'])} training "
           f"objects, {len(m['test_objects'])} held out ({m['train_seconds']:.0f} s)")
     return 0
 

@@ -140,6 +140,9 @@ def recognition_init(model, video, scene, tracks, move_every: int = 0, source: s
 
     def init(prepared, names, bounds, n_chains, seed, integer_sites):
         names = list(names)
+        if move_every and integer_sites:
+            raise GalileoError("the recognition move draws continuous values: not for a scenario with integer "
+                               f"latents ({', '.join(names[j] for j in integer_sites)}); start chains with it instead")
         scenario = registry.of(prepared)
         if getattr(model, "kind", "lenet") == "simulation":
             q = model.proposal(scene, tracks, names, bounds, every=max(move_every, 1))
