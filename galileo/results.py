@@ -107,6 +107,8 @@ class InferenceResult:
         for j, n in enumerate(self.names):
             sel = site == j
             acc[n] = float(accepted[sel].mean()) if sel.any() else None
+        if (site == -1).any():   # the joint independence move (--recognition-move)
+            acc["independence_move"] = float(accepted[site == -1].mean())
         return {"r_hat": r_hat, "ess": ess, "acceptance": acc, "acceptance_all": float(accepted.mean()),
                 "sweeps_to_map_1nat": sweeps_to_map(self.logliks),
                 "early_stopped": float(self.proposals["early_stop"].mean()), "physics_steps": int(self.steps),

@@ -245,6 +245,7 @@ def test_infer_starts_where_init_says_and_records_it(demo_frozen):
     assert (res.proposals["site"] == -1).sum(axis=1).tolist() == [2, 2]
     d = res.to_json()
     assert d["init"] == {"starts": "test"}
+    assert 0 <= d["diagnostics"]["acceptance"]["independence_move"] <= 1
     s = d["diagnostics"]["sweeps_to_map_1nat"]
     assert len(s["per_chain"]) == 2 and s["within_nats"] == 1.0
 
@@ -381,3 +382,39 @@ def test_controller_starts_chains_from_the_recognition_proposal_across_a_reopen(
         assert abs(s[1] - truth[1]) < 5 * 0.02 and abs(math.log(s[0]) - loc[0]) < 5 * 0.2
     finally:
         back.close()
+
+
+# -- the whole protocol from the command line (slow: renders the small preset) ------------------------------------
+
+@pytest.mark.slow
+def test_recognition_protocol_end_to_end_on_small(tmp_path):
+    """Render, label with MCMC, train, score on held-out objects, read a frame, start chains:
+    the commands a researcher reproducing section 4 runs, on the 20-video small preset."""
+    from galileo.scenarios.ramp.dataset import build
+
+    ds = tmp_path / "ds"
+    build("small", ds, seed=0, progress=False)
+    code, out, err = run_cli("recognize", "label", "--dataset", str(ds), "--chains", "4", "--sweeps", "15", "--quiet")
+    assert code == 0, err
+    labels = json.loads((ds / "labels.galileo.json").read_text())["videos"]
+    assert len(labels) == 20 and sum(v["friction"] is not None for v in labels.values()) >= 8
+    model = tmp_path / "m.npz"
+    code, out, err = run_cli("recognize", "train", "--dataset", str(ds), "--out", str(model), "--quiet")
+    assert code == 0, err
+    held = set(LeNetModel.load(model, "ramp").meta["test_objects"])
+    trained = set(LeNetModel.load(model, "ramp").meta["train_objects"])
+    assert held and trained and not held & trained
+    code, out, err = run_cli("recognize", "eval", "--dataset", str(ds), "--splits", "2", "--out", str(tmp_path / "f3"),
+                             "--quiet")
+    assert code == 0, err
+    table = json.loads((tmp_path / "f3" / "table.json").read_text())
+    assert set(table["models"]) == {"galileo", "oracle", "uniform", "simulation"}
+    for e in table["models"].values():
+        assert all(math.isfinite(x) for x in e["mass_mse"]["per_split"])
+    assert (tmp_path / "f3" / "mass_scatter.png").stat().st_size > 1000
+    video = sorted(p for p in ds.iterdir() if p.is_dir())[0]
+    code, out, err = run_cli("infer", str(video / "video.mp4"), "--scene", str(video / "scene.json"), "--init",
+                             "recognition", "--model", str(model), "--chains", "2", "--sweeps", "3", "--out",
+                             str(tmp_path / "r.json"), "--quiet")
+    assert code == 0, err
+    assert json.loads((tmp_path / "r.json").read_text())["init"]["starts"] == "recognition"

@@ -16,6 +16,7 @@ import numpy as np
 from ...errors import GalileoError
 from ...latents import Noise
 from ...model import Drawing, Mesh, Scenario
+from .recognition import MASS_RANGE_KG as RECOGNITION_MASS_RANGE_KG
 from .scene import CM2, CM3, KINDS, VOLUME_RANGE_CM3, equal_area
 
 WATER_COLOR = (90, 150, 230)
@@ -39,6 +40,9 @@ class SplashScenario(Scenario):
     package = __name__   # scene.py, tracking.py
     protocol = {"chains": 50, "sweeps": 75}   # the seed: 50 chains per video (75 sweeps: Galileo's)
     noise = Noise("sigma_px", "px", 1.0, "SD of tracked positions (px) and velocities (px/frame), the seed's Sigma = 1")
+    # the recognition model's mass scale: the catalogue's lightest (1.9 g) and heaviest
+    # (54.9 g) objects, rounded outward (recognition.MASS_RANGE_KG)
+    recognition_mass_range_kg = RECOGNITION_MASS_RANGE_KG
 
     def prepare(self, scene, tracks):
         """The scene with the bottom-up shape kind and volume from the tracks (when they carry
@@ -121,3 +125,26 @@ class SplashScenario(Scenario):
         d = self.derived(scene, values)
         return (", ".join(f"{k} = {v:.4g}" for k, v in values.items())
                 + f"; mass {1000 * d['mass_kg']:.4g} g from a volume of {d['volume_cm3']:.4g} cm^3")
+
+    # -- recognition (Galileo section 4): the object's mass from one frame, as a density start --
+    def readouts(self, prepared_scene):
+        from .recognition import readouts
+
+        return readouts(prepared_scene)
+
+    def recognition_label(self, prepared_scene, tracks, values):
+        from .recognition import label
+
+        return label(prepared_scene, tracks, values)
+
+    def recognition_examples(self, folder):
+        from pathlib import Path
+
+        from .recognition import examples
+
+        return examples(Path(folder))
+
+    def recognition_features(self, prepared_scene):
+        from .recognition import features
+
+        return features(prepared_scene)
