@@ -206,15 +206,34 @@ class Scenario(ABC):
     # the mass range mapped to 0..1 on the recognition model's log-normalised scale
     recognition_mass_range_kg: tuple[float, float] = (0.005, 0.2)
 
+    # By default these come from the scenario package's `recognition` module, if it has one:
+    # `readouts(prepared)`, `label(prepared, tracks, values)`, `examples(folder)`, `features(prepared)`.
+    def _recognition(self, name: str):
+        import importlib
+
+        if not self.package:
+            return None
+        module = f"{self.package}.recognition"
+        try:
+            return getattr(importlib.import_module(module), name, None)
+        except ModuleNotFoundError as e:
+            if e.name == module:
+                return None
+            raise
+
     def readouts(self, prepared_scene) -> tuple[Readout, ...]:
         """The objects a recognition model reads in this scene and the latents it starts
-        (default: none; the scenario then has no image recognition)."""
-        return ()
+        (none without a recognition module: the scenario then has no image recognition)."""
+        fn = self._recognition("readouts")
+        return tuple(fn(prepared_scene)) if fn else ()
 
     def recognition_label(self, prepared_scene, tracks: Tracks, values: dict[str, float]) -> dict[str, dict]:
         """The "Galileo label" of each read object from a MAP: {role: {"mass_kg", "friction"}},
         None where the video does not identify the quantity. Default: the readout latents."""
-        return {r.role: {"mass_kg": values.get(r.mass) if r.mass else None,
+        fn = self._recognition("label")
+        if fn:
+            return fn(prepared_scene, tracks, values)
+        return {r.role: {"mass_kg": values[r.mass] / r.mass_per_kg if r.mass in values else None,
                          "friction": values.get(r.friction) if r.friction else None}
                 for r in self.readouts(prepared_scene)}
 
@@ -223,12 +242,16 @@ class Scenario(ABC):
         read in which video, the object and group that splits keep together, ground truth)."""
         from .errors import GalileoError
 
-        raise GalileoError(f"the {self.name} scenario has no recognition dataset")
+        fn = self._recognition("examples")
+        if fn is None:
+            raise GalileoError(f"the {self.name} scenario has no recognition dataset")
+        return fn(Path(folder))
 
     def recognition_features(self, prepared_scene) -> np.ndarray:
         """Numbers describing a prepared scene beyond its latents (angles, sizes) that the
         simulation-trained recognition model reads beside the tracked velocities."""
-        return np.zeros(0)
+        fn = self._recognition("features")
+        return np.asarray(fn(prepared_scene), float) if fn else np.zeros(0)
 
     # -- the video a scene describes ------------------------------------------------------------
     def camera(self, scene) -> "Camera | None":

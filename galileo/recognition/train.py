@@ -25,7 +25,7 @@ from tqdm import tqdm
 
 from .. import registry
 from ..errors import GalileoError
-from ..jsonio import write_json
+from ..jsonio import atomic_write_bytes, write_json
 from . import lenet
 from .data import QUANTITIES, Example, load_examples, patches, read_labels, split, tracks_for
 from .model import LeNetModel
@@ -235,12 +235,7 @@ def figure3(folder: str | Path, out_dir: str | Path, *, folds: int = FOLDS, seed
         entry["test_objects_per_split"] = [s["objects"] for s in scores]
         table["models"][name] = entry
     table["predictions"] = rows_all
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_json(out_dir / "table.json", table)
-    (out_dir / "table.md").write_text(markdown(table))
-    scatter(rows_all, out_dir / "mass_scatter.png", "mass")
-    scatter(rows_all, out_dir / "friction_scatter.png", "friction")
-    return table
+    return write_table(out_dir, table, rows_all)
 
 
 def evaluate_model(folder: str | Path, model_path: str | Path, out_dir: str | Path, progress: bool = True) -> dict:
@@ -256,7 +251,12 @@ def evaluate_model(folder: str | Path, model_path: str | Path, out_dir: str | Pa
     test = [e for e in examples if e.object_id in held]
     if not test:
         raise GalileoError(f"none of the objects {model_path} held out is in {folder}")
-    rows = predict_objects(model, test, collect_patches(test, progress))
+    if model.kind == "simulation":
+        from .simulation import predict_objects as simulation_rows
+
+        rows = simulation_rows(model, test)
+    else:
+        rows = predict_objects(model, test, collect_patches(test, progress))
     rows_all = {model.meta.get("labels", "model"): rows, "uniform": uniform_rows(rows, model.mass_range_kg)}
     table = {"scenario": scenario, "dataset": str(folder), "model": str(model_path), "folds": 1,
              "seed": model.meta.get("seed"),
@@ -268,9 +268,14 @@ def evaluate_model(folder: str | Path, model_path: str | Path, out_dir: str | Pa
                                  for q in ("mass", "friction") if q in sc
                                  for m in ("mse", "pearson", "coverage90") if m in sc[q]}
         table["models"][name]["test_objects_per_split"] = [sc["objects"]]
+    return write_table(out_dir, table, rows_all)
+
+
+def write_table(out_dir: Path, table: dict, rows_all: dict) -> dict:
+    """table.json, table.md and the mass and friction scatter PNGs into out_dir."""
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json(out_dir / "table.json", table)
-    (out_dir / "table.md").write_text(markdown(table))
+    atomic_write_bytes(out_dir / "table.md", markdown(table).encode())
     scatter(rows_all, out_dir / "mass_scatter.png", "mass")
     scatter(rows_all, out_dir / "friction_scatter.png", "friction")
     return table

@@ -24,7 +24,7 @@ class RampScenario(Scenario):
     name = "ramp"
     description = ("an object slides down a ramp and maybe hits a target on the ground "
                    "(Galileo, NIPS 2015): masses and frictions from tracked velocities")
-    package = __name__   # scene.py, tracking.py
+    package = __name__   # scene.py, tracking.py, recognition.py
     noise = Noise("sigma_mps", "m/s", 0.05, "SD of each tracked velocity component (x, z), the paper's Sigma")
 
 
@@ -71,26 +71,6 @@ class RampScenario(Scenario):
         ratio = self.derived(scene, values)["mass_ratio"]
         return ", ".join(f"{k} = {v:.3f}" for k, v in values.items()) + (
             f", m1/m2 = {ratio:.2f}" if ratio is not None else "")
-
-    def readouts(self, prepared_scene):
-        from .recognition import readouts
-
-        return readouts(prepared_scene)
-
-    def recognition_label(self, prepared_scene, tracks, values):
-        from .recognition import label
-
-        return label(prepared_scene, tracks, values)
-
-    def recognition_examples(self, folder):
-        from .recognition import examples
-
-        return examples(Path(folder))
-
-    def recognition_features(self, prepared_scene):
-        from .recognition import features
-
-        return features(prepared_scene)
 
     def predict(self, result_path: str | Path, questions: dict) -> dict:
         from ...errors import GalileoError
