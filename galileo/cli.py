@@ -221,23 +221,21 @@ def cmd_recognize_train(args: argparse.Namespace) -> int:
 
 
 def cmd_recognize_eval(args: argparse.Namespace) -> int:
-    import json
+    from .recognition.train import evaluate_model, figure3, markdown
 
-    from .recognition.train import evaluate_model, figure3
-
+    if args.splits < 2:
+        raise GalileoError("--splits must be at least 2 (each split holds out a share of the objects)")
     if args.model:
-        out = evaluate_model(args.dataset, args.model, args.out, progress=not args.quiet)
+        table = evaluate_model(args.dataset, args.model, args.out, progress=not args.quiet)
     else:
-        out = figure3(args.dataset, args.out, folds=args.splits, seed=args.seed, progress=not args.quiet,
-                      simulation=not args.no_simulation)
-    print((Path(args.out) / "table.md").read_text())
+        table = figure3(args.dataset, args.out, folds=args.splits, seed=args.seed, progress=not args.quiet,
+                        simulation=not args.no_simulation)
+    print(markdown(table))
     print(f"wrote {Path(args.out) / 'table.json'}, table.md and the scatter figures")
-    return 0 if out else 0
+    return 0
 
 
 def cmd_recognize_predict(args: argparse.Namespace) -> int:
-    import json
-
     from . import registry
     from .datatypes import Tracks
     from .recognition.model import load_model
@@ -247,11 +245,12 @@ def cmd_recognize_predict(args: argparse.Namespace) -> int:
     model = load_model(args.model, scenario.name)
     tracks = Tracks.load(args.tracks) if args.tracks else None
     if tracks is None and not args.no_track:
-        from .errors import GalileoError as _E
+        from .errors import StillVideo
+
         try:
             tracks = scenario.track(args.video, scene, progress=False)
-        except _E:
-            tracks = None   # e.g. nothing moves: read the objects where the scene file puts them
+        except StillVideo:
+            tracks = None   # a still video: read the objects where the scene file puts them
     readings = model.read_video(args.video, scene, tracks)
     out = {"model": str(args.model or "built-in"), "labels": model.meta.get("labels"),
            "objects": {role: r.to_json() for role, r in readings.items()}}

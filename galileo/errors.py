@@ -9,6 +9,10 @@ class SceneError(GalileoError):
     """A scene file that is missing, malformed or physically impossible."""
 
 
+class StillVideo(GalileoError):
+    """The tracker sees nothing move in a video (evidence in itself, but nothing to track)."""
+
+
 def run_reporting_errors(prog: str, fn) -> int:
     """`fn()`'s exit code; a GalileoError becomes one line on stderr and exit code 2, Ctrl-C
     exit code 130 (for the CLI and the bench scripts)."""

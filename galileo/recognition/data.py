@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from .. import registry
 from ..datatypes import Tracks
-from ..errors import GalileoError
+from ..errors import GalileoError, StillVideo
 from ..jsonio import read_json, write_json
 
 LABELS_FILE = "labels.galileo.json"
@@ -96,15 +96,15 @@ def split(examples: list[Example], fold: int, k: int = 5, seed: int = 0) -> tupl
 # -- tracks, patches ---------------------------------------------------------------------------------
 
 def tracks_for(ex: Example, scene=None) -> Tracks | None:
-    """The video's tracks (cached as tracks.json in its folder), or None when the tracker
-    refuses it (e.g. nothing moves)."""
+    """The video's tracks (cached as tracks.json in its folder), or None when nothing moves
+    in it (other tracking errors are raised)."""
     cached = ex.folder / TRACKS_FILE
     if cached.is_file():
         return Tracks.load(cached)
     scene = scene if scene is not None else registry.load_scene(ex.scene)
     try:
         tracks = registry.of(scene).track(ex.video, scene, progress=False)
-    except GalileoError:
+    except StillVideo:
         return None
     tracks.save(cached)
     return tracks
@@ -205,7 +205,7 @@ def make_labels(folder: str | Path, config=None, progress: bool = True, executor
                 raise GalileoError(f"{path} was made with other settings ({d.get('config')}); delete it "
                                    "or label with those")
             done = d["videos"]
-    todo = [e for e in examples if e.name not in done]
+    todo = [e for e in examples if e.name not in done or "error" in done[e.name]]   # errors are tried again
     own = executor is None
     if own and todo:
         from ..runner import local_executor
@@ -213,12 +213,16 @@ def make_labels(folder: str | Path, config=None, progress: bool = True, executor
         executor = local_executor(cfg.workers, cfg.chains)
     try:
         for ex in tqdm(todo, desc="labelling", unit="video", disable=not progress):
-            scene = registry.load_scene(ex.scene)
-            tracks = tracks_for(ex, scene)
-            if tracks is None:
+            try:
+                scene = registry.load_scene(ex.scene)
+                tracks = tracks_for(ex, scene)
+            except GalileoError as e:   # this video is unusable: say why, go on with the others
+                done[ex.name] = {"mass_kg": None, "friction": None, "error": str(e)}
+                tracks = scene = None
+            if scene is not None and tracks is None:
                 done[ex.name] = {"mass_kg": None, "friction": None,
-                                 "note": "the tracker refused the video (nothing moves): no label"}
-            else:
+                                 "note": "nothing moves in the video: no label"}
+            elif tracks is not None:
                 res = infer(scene, tracks, cfg, executor=executor, progress=False)
                 lab = scenario.recognition_label(res.scene, tracks, res.map).get(ex.role, {})
                 done[ex.name] = {"mass_kg": lab.get("mass_kg"), "friction": lab.get("friction"),

@@ -44,7 +44,7 @@ from tqdm import tqdm
 
 from ...camera import backproject_to_plane
 from ...datatypes import ObjectTrack, Tracks
-from ...errors import GalileoError
+from ...errors import GalileoError, StillVideo
 from ...shapes import SHAPE_TYPES, Shape, shape_class
 from ...video import read_video_yuv, yuv_to_rgb
 from ...vision import shapenet
@@ -259,7 +259,7 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
     fg_last = full_res(foreground(tiny[-1], bg_start, noise), full_hw)
     if largest_component(fg0_small) is None and largest_component(fg_last) is None:
         bar.close()
-        raise GalileoError(f"nothing moves in {video_path}: no foreground at the start or the end of the video")
+        raise StillVideo(f"nothing moves in {video_path}: no foreground at the start or the end of the video")
 
     # frame-0 foreground at full resolution, within 2 px of the robust half-resolution one
     near = dilate(fg0_small, NEAR_PX)

@@ -44,7 +44,7 @@ import numpy as np
 
 from ...camera import backproject_to_plane
 from ...datatypes import ObjectTrack, Tracks
-from ...errors import GalileoError
+from ...errors import GalileoError, StillVideo
 from ...shapes import Box, Cylinder
 from ...video import read_video_yuv
 from ...vision.background import (blobs, clean, dilate, foreground, largest_component, mog2_background,
@@ -185,7 +185,7 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     bg = background(yuv, noise)
     found = [largest_component(clean(foreground(f, bg, noise)) > 0) for f in yuv]
     if sum(b is not None for b in found) < 2:
-        raise GalileoError(f"nothing moves in {video_path}: no object against the tank's background")
+        raise StillVideo(f"nothing moves in {video_path}: no object against the tank's background")
     y_plane = float(scene.release_m[1])
 
     # bottom-up: the first usable silhouettes
