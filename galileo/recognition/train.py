@@ -333,7 +333,8 @@ def scatter(rows_all: dict[str, dict], path: Path, quantity: str) -> None:
     ax.plot([lo, hi], [lo, hi], "k--", lw=0.8, label="y = x")
     unit = " (kg)" if quantity == "mass" else ""
     ax.set_xlabel(f"true {quantity}{unit}"), ax.set_ylabel(f"predicted {quantity}{unit}")
-    ax.set_title(f"{quantity} from one frame, held-out objects")
+    ax.set_title(f"{quantity} of held-out objects\n(LeNet: one frame; simulation model: the tracked motion)",
+                 fontsize=10)
     ax.legend(fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
