@@ -151,6 +151,7 @@ def figure(per_video, names, path: Path, sweeps: int) -> None:
         b.fill_between(x, q25, q75, color=colours.get(name, "k"), alpha=0.2)
     b.axhline(WITHIN_NATS, color="k", ls="--", lw=0.8, label="1 nat")
     b.set_yscale("symlog", linthresh=1.0)
+    b.set_ylim(bottom=0)
     b.set_xlabel("sweep"), b.set_ylabel("MAP log-lik - chain's log-lik (nats)")
     b.set_title(f"{len(per_video)} held-out videos, all chains (quartiles shaded)")
     b.legend(fontsize=8)
