@@ -4,7 +4,9 @@ tracked positions and velocities, mass = density x the bottom-up volume.
 
 This folder holds all of it: the scene and priors (`scene.py`), buoyancy and drag in Bullet
 (`physics.py`), the position-and-velocity likelihood with its exact speed-ups
-(`likelihood.py`). `SplashScenario` is its face to the rest of Galileo.
+(`likelihood.py`), what the recognition model reads and learns from (`recognition.py`: the
+object's mass from one frame, as a density start). `SplashScenario` is its face to the rest
+of Galileo.
 """
 from __future__ import annotations
 
@@ -16,7 +18,6 @@ import numpy as np
 from ...errors import GalileoError
 from ...latents import Noise
 from ...model import Drawing, Mesh, Scenario
-from .recognition import MASS_RANGE_KG as RECOGNITION_MASS_RANGE_KG
 from .scene import CM2, CM3, KINDS, VOLUME_RANGE_CM3, equal_area
 
 WATER_COLOR = (90, 150, 230)
@@ -37,12 +38,12 @@ class SplashScenario(Scenario):
     name = "splash"
     description = ("an object dropped into a tank of water (Physics 101, splash): density, bottom area, "
                    "water drag and start frame from tracked positions and velocities; mass = density x volume")
-    package = __name__   # scene.py, tracking.py
+    package = __name__   # scene.py, tracking.py, recognition.py
     protocol = {"chains": 50, "sweeps": 75}   # the seed: 50 chains per video (75 sweeps: Galileo's)
     noise = Noise("sigma_px", "px", 1.0, "SD of tracked positions (px) and velocities (px/frame), the seed's Sigma = 1")
-    # the recognition model's mass scale: the catalogue's lightest (1.9 g) and heaviest
-    # (54.9 g) objects, rounded outward (recognition.MASS_RANGE_KG)
-    recognition_mass_range_kg = RECOGNITION_MASS_RANGE_KG
+    # the recognition model's mass scale (recognition.py: readouts, labels, examples, features):
+    # the catalogue's lightest (1.9 g, foam) and heaviest (54.9 g, porcelain) objects, rounded outward
+    recognition_mass_range_kg = (0.001, 0.06)
 
     def prepare(self, scene, tracks):
         """The scene with the bottom-up shape kind and volume from the tracks (when they carry
@@ -125,26 +126,3 @@ class SplashScenario(Scenario):
         d = self.derived(scene, values)
         return (", ".join(f"{k} = {v:.4g}" for k, v in values.items())
                 + f"; mass {1000 * d['mass_kg']:.4g} g from a volume of {d['volume_cm3']:.4g} cm^3")
-
-    # -- recognition (Galileo section 4): the object's mass from one frame, as a density start --
-    def readouts(self, prepared_scene):
-        from .recognition import readouts
-
-        return readouts(prepared_scene)
-
-    def recognition_label(self, prepared_scene, tracks, values):
-        from .recognition import label
-
-        return label(prepared_scene, tracks, values)
-
-    def recognition_examples(self, folder):
-        from pathlib import Path
-
-        from .recognition import examples
-
-        return examples(Path(folder))
-
-    def recognition_features(self, prepared_scene):
-        from .recognition import features
-
-        return features(prepared_scene)
