@@ -333,6 +333,18 @@ def test_cli_refusals_are_one_line_exit_2(demo_dir, tmp_path):
     assert not (tmp_path / "r.json").exists() and not (tmp_path / "m.npz").exists()
 
 
+def test_cli_predict_refuses_an_object_it_cannot_crop(demo_dir, tmp_path):
+    """A camera turned away from the scene: the object is not in the frame."""
+    scene = json.loads((demo_dir / "scene.json").read_text())
+    w2c = np.array(scene["camera"]["world_to_camera"])
+    flip = np.diag([-1.0, 1.0, -1.0, 1.0])      # half a turn about the camera's y axis
+    scene["camera"]["world_to_camera"] = (flip @ w2c).tolist()
+    path = tmp_path / "away.json"
+    path.write_text(json.dumps(scene))
+    code, out, err = run_cli("recognize", "predict", str(demo_dir / "video.mp4"), "--scene", str(path), "--no-track")
+    assert code == 2 and err.count("\n") == 1 and "cannot be cropped" in err, err
+
+
 def test_cli_predict_reads_the_demo_from_its_first_frame(demo_dir, tmp_path):
     out = tmp_path / "read.json"
     code, stdout, err = run_cli("recognize", "predict", str(demo_dir / "video.mp4"), "--scene",
