@@ -205,6 +205,8 @@ class Scenario(ABC):
     # -- recognition (Galileo section 4): physical properties read from one frame ---------------
     # the mass range mapped to 0..1 on the recognition model's log-normalised scale
     recognition_mass_range_kg: tuple[float, float] = (0.005, 0.2)
+    # patches come from the frames before the object has moved this far from its first position
+    recognition_patch_motion_m: float = 0.01
 
     # By default these come from the scenario package's `recognition` module, if it has one:
     # `readouts(prepared)`, `label(prepared, tracks, values)`, `examples(folder)`, `features(prepared)`.

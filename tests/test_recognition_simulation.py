@@ -231,3 +231,30 @@ def test_fig3_rows_on_a_small_dataset(scene, tmp_path):
     assert rows["a#0"]["mass_identified"] and rows["a#0"]["true_friction"] == 0.15
     assert not rows["b#0"]["mass_identified"] and rows["b#0"]["y_mass"] == 0.5
     assert fn.models[0].meta["test_objects"] == ["a#0", "b#0"] and fn.models[0].meta["train_objects"] == ["c#0"]
+
+
+def test_draws_outside_the_priors_support_are_dropped():
+    """Splash: a 20 cm^3 object cannot show every bottom area of the prior U(0.1, 20) cm^2 and
+    fit the tank (a 0.1 cm^2 bottom makes it 2 m tall): such draws have prior density 0, so the
+    training set is the prior restricted to its support, not an error."""
+    from galileo.datatypes import ObjectTrack, Tracks
+    from galileo.recognition.simulation import simulate_training_set
+    from galileo.scenarios.splash.physics import Simulator
+    from galileo.scenarios.splash.scene import dimensions, default_scene
+    from galileo.shapes import Box
+
+    scene = default_scene("vcyl", 20.0, 2.0, 0.7, start_step=12)
+    traj = Simulator(scene).run(30, start_step=12)
+    track = ObjectTrack("object", "object", traj.position_m[0], traj.velocity_mps[0], np.ones(30, bool),
+                        Box((0.01, 0.01, 0.01)), bottom_up={"kind": "vcyl", "volume_cm3": 20.0})
+    splash = registry.get("splash")
+    x, values, _, which = simulate_training_set(splash, [(scene, Tracks(scene.fps, [track]))], sims=24, seed=0,
+                                                workers=1, progress=False)
+    assert len(x) == len(values) == len(which) and np.isfinite(x).all()
+    # exactly the draws whose shape exists are kept (checked with the scene's own geometry rule)
+    rng = np.random.default_rng(np.random.SeedSequence(0, spawn_key=(0,)))
+    from galileo.recognition.simulation import _draw_values
+
+    drawn = _draw_values(splash.latents(splash.prepare(scene, Tracks(scene.fps, [track]))), 24, rng)
+    ok = [d for d in drawn if dimensions("vcyl", 20e-6, d["area_cm2"] * 1e-4, scene.max_dim_m()) is not None]
+    assert 0 < len(values) < 24 and values == ok

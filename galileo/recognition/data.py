@@ -23,7 +23,6 @@ from ..jsonio import read_json, write_json
 LABELS_FILE = "labels.galileo.json"
 TRACKS_FILE = "tracks.json"        # cached beside each video's scene file
 PATCH_FRAMES = 4                   # patches from the first frame and up to 3 more before motion
-MOTION_M = 0.01                    # "before motion": the object within this of its first position
 QUANTITIES = ("mass_kg", "friction")
 
 
@@ -119,7 +118,7 @@ def start_positions(scene) -> dict[str, np.ndarray]:
 
 def patches(video: str | Path, scene, tracks: Tracks | None, role: str, max_frames: int = PATCH_FRAMES) -> np.ndarray:
     """Patches (N, 32, 32, 3) uint8 of object `role` from the first frame and the frames
-    before it moves, cropped where the tracker puts it (where the scene file puts it, in the
+    before it moves (`Scenario.recognition_patch_motion_m`), cropped where the tracker puts it (where the scene file puts it, in the
     first frame only, without tracks). GalileoError when it cannot be cropped."""
     from ..video import read_frames
     from ..vision.patch import object_patch
@@ -135,7 +134,8 @@ def patches(video: str | Path, scene, tracks: Tracks | None, role: str, max_fram
         if not len(vis):
             raise GalileoError(f"the {role} object is never seen: it cannot be cropped")
         first = tr.position_m[vis[0]]
-        frames = [int(f) for f in vis if np.linalg.norm(tr.position_m[f] - first) < MOTION_M][:max_frames]
+        motion_m = registry.of(scene).recognition_patch_motion_m
+        frames = [int(f) for f in vis if np.linalg.norm(tr.position_m[f] - first) < motion_m][:max_frames]
         centres = {f: tr.position_m[f] for f in frames}
     else:
         centres = {0: start_positions(scene)[role]}

@@ -20,7 +20,14 @@ from ..errors import GalileoError
 from . import lenet, modelfile
 
 Z90 = 1.6448536269514722     # the 95% quantile of a standard normal: 90% intervals
-BUILTIN = Path(__file__).resolve().parents[1] / "data" / "recognition_ramp.npz"
+DATA = Path(__file__).resolve().parents[1] / "data"
+BUILTIN = DATA / "recognition_ramp.npz"     # the ramp's (Galileo labels on the full preset, split 0 held out)
+
+
+def builtin(scenario: str | None) -> Path | None:
+    """The shipped model for a scenario's built-in dataset (data/recognition_<scenario>.npz), if any."""
+    path = DATA / f"recognition_{scenario or 'ramp'}.npz"
+    return path if path.is_file() else None
 
 
 @dataclass(frozen=True)
@@ -117,12 +124,11 @@ class LeNetModel:
 
 
 def load_model(path: str | Path | None, scenario: str | None = None):
-    """A model file, LeNet or simulation-trained (default: the built-in LeNet for the ramp
-    dataset)."""
+    """A model file, LeNet or simulation-trained (default: the scenario's built-in LeNet)."""
     if path is None:
-        if scenario not in (None, "ramp"):
+        path = builtin(scenario)
+        if path is None:
             raise GalileoError(f"no built-in recognition model for the {scenario} scenario; give --model")
-        path = BUILTIN
     meta, _ = modelfile.load(path, scenario=scenario)
     if meta.get("kind") == "simulation":
         from .simulation import SimulationModel

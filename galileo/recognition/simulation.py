@@ -134,10 +134,16 @@ def _simulate_chunk(task) -> tuple[int, int, np.ndarray]:
     index, start, scenario_name, scene_json, tracks_json, values, frames, fps = task
     scenario = registry.get(scenario_name)
     scene = scenario.scene_from_json(scene_json)
-    prepared = scenario.prepare(scene, Tracks.from_json(tracks_json))
+    tracks = Tracks.from_json(tracks_json)
+    prepared = scenario.prepare(scene, tracks)
+    n_obj = len(object_roles(prepared, tracks))
     out = []
     for v, n_frames in zip(values, frames):
-        traj = scenario.simulate(prepared, int(n_frames), values=v, fps=fps)
+        try:
+            traj = scenario.simulate(prepared, int(n_frames), values=v, fps=fps)
+        except GalileoError:   # outside the prior's support (e.g. no splash shape has this area): dropped
+            out.append(np.full((n_obj, T_MAX, 3), np.inf))
+            continue
         vel = np.asarray(traj.velocity_mps, float)[:, :T_MAX]
         # frames not simulated (or a simulation that stopped early) are unknown: never seen
         out.append(np.concatenate([vel, np.full((vel.shape[0], T_MAX - vel.shape[1], 3), np.nan)], axis=1))
@@ -225,13 +231,16 @@ def simulate_training_set(scenario, pairs, *, sims: int = SIMS_PER_SCENE, seed: 
                 ex.shutdown(wait=True, cancel_futures=True)
     finally:
         bar.close()
-    xs, which = [], []
+    xs, which, values = [], [], []
     for i, ((scene, tracks), p) in enumerate(zip(pairs, prepared)):
         vel = np.concatenate([results[i, s] for s in range(0, sims, size)])    # (sims, n_obj, T_MAX, 3)
         _, vis = tracked_series(p, tracks)
         vis = vis[:, :T_MAX]
         own = vis.shape[1]
         for k in range(sims):
+            if np.isposinf(vel[k]).all():   # a draw outside the prior's support: the prior restricted to it
+                continue
+            values.append(draws[i][k])
             n = int(lengths[i][k])
             seen = np.zeros((vis.shape[0], T_MAX), bool)
             seen[:, :min(n, own)] = vis[:, :min(n, own)]
@@ -239,7 +248,8 @@ def simulate_training_set(scenario, pairs, *, sims: int = SIMS_PER_SCENE, seed: 
                 seen[:, own:n] = vis[:, own - 1:own]
             xs.append(observation_features(scenario, p, vel[k], seen & np.isfinite(vel[k]).all(axis=2), slots))
             which.append(i)
-    values = [v for d in draws for v in d]
+    if not xs:
+        raise GalileoError("every simulation from the prior fell outside its support")
     return np.stack(xs), values, prepared, np.array(which)
 
 

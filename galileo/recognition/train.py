@@ -149,7 +149,9 @@ def predict_objects(model: LeNetModel, examples: list[Example], patch_by_name) -
 def metrics(pred: np.ndarray, true: np.ndarray) -> dict:
     pred, true = np.asarray(pred, float), np.asarray(true, float)
     mse = float(np.mean((pred - true) ** 2))
-    r = float(np.corrcoef(pred, true)[0, 1]) if len(pred) > 2 and np.std(pred) > 0 and np.std(true) > 0 else 0.0
+    def varies(x):   # a constant (the uniform baseline) has no correlation: 0, not rounding noise
+        return np.ptp(x) > 1e-12 * max(1.0, float(np.abs(x).max()))
+    r = float(np.corrcoef(pred, true)[0, 1]) if len(pred) > 2 and varies(pred) and varies(true) else 0.0
     return {"mse": mse, "pearson": r}
 
 

@@ -44,6 +44,8 @@ class SplashScenario(Scenario):
     # the recognition model's mass scale (recognition.py: readouts, labels, examples, features):
     # the catalogue's lightest (1.9 g, foam) and heaviest (54.9 g, porcelain) objects, rounded outward
     recognition_mass_range_kg = (0.001, 0.06)
+    # the object falls from frame 0: patches from its first 10 cm of fall, in air (1 cm keeps frame 0 only)
+    recognition_patch_motion_m = 0.10
 
     def prepare(self, scene, tracks):
         """The scene with the bottom-up shape kind and volume from the tracks (when they carry
