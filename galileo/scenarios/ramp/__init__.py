@@ -4,8 +4,9 @@ Everything the ramp knows lives in this folder: the scene and its priors (`scene
 Bullet world (`physics.py`), detection and tracking of its objects (`tracking.py`), the
 two-phase velocity likelihood with its exact speed-ups (`likelihood.py`), the paper's
 questions (`predict.py`), its dataset and renderer (`dataset.py`, `render.py`,
-`materials.py`) and experiments (`experiments.py`). `RampScenario` is its face to the rest
-of Galileo (`galileo.model.Scenario`).
+`materials.py`), experiments (`experiments.py`) and what the recognition model reads and
+learns from (`recognition.py`). `RampScenario` is its face to the rest of Galileo
+(`galileo.model.Scenario`).
 """
 from __future__ import annotations
 
