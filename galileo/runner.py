@@ -226,11 +226,8 @@ def run_task(task: ChainTask) -> dict:
     state = MHState(pos, float(logdensity), int(task.sweep))
     positions, logliks, infos = [], [], []
     for _ in range(task.n_sweeps):
-        if task.independence is None:
-            state, inf = sweep(rng, state, lik, task.bounds, task.proposal, task.speedups)
-        else:
-            state, inf = sweep(rng, state, lik, task.bounds, task.proposal, task.speedups,
-                               independence=task.independence)
+        state, inf = sweep(rng, state, lik, task.bounds, task.proposal, task.speedups,
+                           independence=task.independence)
         positions.append(state.position.copy())
         logliks.append(state.logdensity)
         infos.extend(inf)

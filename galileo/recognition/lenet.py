@@ -21,10 +21,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import contextlib
+
 import numpy as np
 from tqdm import tqdm
 
-MASS_RANGE_KG = (0.005, 0.2)
+from ..model import Scenario
+
+MASS_RANGE_KG = Scenario.recognition_mass_range_kg   # the default scale (the ramp's)
 MEMBERS = 5            # ensemble size
 EPOCHS = 60
 BATCH = 32
@@ -107,17 +111,25 @@ def train(patches_u8: np.ndarray, y: np.ndarray, *, seed: int = 0, members: int 
         return _train(torch, patches_u8, y, seed, members, epochs, progress, desc)
 
 
-class one_thread:
-    """Torch on one thread for the block: these networks are tiny, and a second thread only
-    waits on the first (20x slower steps measured on 2 busy cores)."""
+@contextlib.contextmanager
+def one_thread():
+    """Torch on one thread for the block (the caller's number after): these networks are
+    tiny, and a second thread only waits on the first (20x slower steps measured on 2 busy
+    cores). Yields torch."""
+    torch = _torch()
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield torch
+    finally:
+        torch.set_num_threads(before)
 
-    def __enter__(self):
-        torch = _torch()
-        self.before = torch.get_num_threads()
-        torch.set_num_threads(1)
 
-    def __exit__(self, *exc):
-        _torch().set_num_threads(self.before)
+def mixture(means: np.ndarray, variances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An equal-weight mixture's mean and variance over axis 0 (ensemble members, or several
+    readings of one object): mean of means; mean of variances + variance of means."""
+    means, variances = np.asarray(means, float), np.asarray(variances, float)
+    return means.mean(0), variances.mean(0) + means.var(0)
 
 
 def _train(torch, patches_u8, y, seed, members, epochs, progress, desc) -> Trained:
@@ -176,13 +188,11 @@ def predict(states: list, patches_u8: np.ndarray) -> tuple[np.ndarray, np.ndarra
             mu, logvar = model(x)
             mus.append(mu.numpy())
             vars_.append(np.exp(logvar.numpy()))
-    mus, vars_ = np.stack(mus), np.stack(vars_)
-    mean = mus.mean(0)
-    var = vars_.mean(0) + mus.var(0)
+    mean, var = mixture(np.stack(mus), np.stack(vars_))
     return mean, np.sqrt(var)
 
 
 def pool(mean: np.ndarray, sd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Several patches of one object -> one Gaussian per quantity (the mixture's moments)."""
-    m = mean.mean(0)
-    return m, np.sqrt((sd ** 2).mean(0) + mean.var(0))
+    m, var = mixture(mean, sd ** 2)
+    return m, np.sqrt(var)

@@ -41,7 +41,6 @@ estimate (`read_labels`). Model files: `modelfile` (NPZ + JSON header, never pic
 """
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import time
@@ -55,6 +54,8 @@ from .. import registry
 from ..datatypes import Tracks
 from ..errors import GalileoError
 from . import modelfile
+from .lenet import mixture, one_thread   # torch on one thread (the MLP's small matrices gain nothing
+                                         # from more: 2 threads made a step 190 ms against 1.2 ms)
 
 # -- tunables -------------------------------------------------------------------------------------
 T_MAX = 90                  # frames of velocity read per object (30 fps: 3 s)
@@ -70,8 +71,6 @@ WEIGHT_DECAY = 1e-5
 MEMBERS = 3                 # ensemble size (different seeds)
 LOGVAR_RANGE = (-12.0, 2.0)  # predicted log-variances (of the [0, 1] scale) clamped here
 MAX_WORKERS = 16            # simulation processes at most (and no more than os.cpu_count())
-TORCH_THREADS = 1           # the MLP's small matrices gain nothing from more (and a busy machine's
-                            # cores made 2 threads 100x slower per step: 190 ms against 1.2 ms)
 LABEL_DRAWS = 256           # draws from the predicted marginals for a label's spread
 SCALE_FLOOR = 1e-3          # smallest proposal scale (latent's own terms)
 VERSION = 1                 # this model kind's own layout (beside modelfile.VERSION)
@@ -313,18 +312,6 @@ def _torch():
     return torch
 
 
-@contextlib.contextmanager
-def _torch_threads():
-    """TORCH_THREADS intra-op threads while training or reading, the caller's number after."""
-    torch = _torch()
-    before = torch.get_num_threads()
-    torch.set_num_threads(TORCH_THREADS)
-    try:
-        yield torch
-    finally:
-        torch.set_num_threads(before)
-
-
 def _net(n_in: int, n_out: int, hidden=HIDDEN):
     torch = _torch()
     from torch import nn
@@ -353,7 +340,7 @@ def train_networks(x: np.ndarray, y: np.ndarray, *, noise: np.ndarray | None = N
     (state dicts as float32 arrays, final loss per member). `noise` (N, I): the SD of Gaussian
     noise added to each input, drawn afresh for every batch (the observation model: the
     network cannot learn one draw of the noise by heart)."""
-    with _torch_threads():
+    with one_thread():
         return _train_networks(x, y, noise, seed, members, epochs, hidden, progress)
 
 
@@ -401,7 +388,7 @@ def _train_networks(x, y, noise, seed, members, epochs, hidden, progress):
 
 def _run_networks(states: list[dict], x: np.ndarray, n_out: int, hidden) -> tuple[np.ndarray, np.ndarray]:
     """The ensemble's mixture mean and variance (N, D) on standardised inputs."""
-    with _torch_threads() as torch, torch.no_grad():
+    with one_thread() as torch, torch.no_grad():
         xt = torch.from_numpy(np.asarray(x, np.float32))
         mus, vars_ = [], []
         for st in states:
@@ -411,9 +398,7 @@ def _run_networks(states: list[dict], x: np.ndarray, n_out: int, hidden) -> tupl
             mu, logvar = net(xt)
             mus.append(mu.numpy().astype(float))
             vars_.append(np.exp(logvar.numpy().astype(float)))
-    mus, vars_ = np.stack(mus), np.stack(vars_)
-    mean = mus.mean(0)
-    return mean, vars_.mean(0) + ((mus - mean) ** 2).mean(0)
+    return mixture(np.stack(mus), np.stack(vars_))
 
 
 # -- the model --------------------------------------------------------------------------------------
@@ -686,7 +671,7 @@ def predict_objects(model: SimulationModel, examples, cache: dict | None = None,
     scenario = registry.get(model.scenario)
     usable = {ex.name: (scene, tracks) for ex, scene, tracks in _usable(examples, cache)}
     # the scenario's log-normalised mass scale, as the LeNet rows use it
-    mass_range = tuple(getattr(scenario, "recognition_mass_range_kg", lenet.MASS_RANGE_KG))
+    mass_range = tuple(scenario.recognition_mass_range_kg)
     m_lo, m_hi = mass_range
     prior_log_sd = math.log(m_hi / m_lo) / math.sqrt(12)   # a uniform over the log-normalised scale
     by_obj: dict[str, dict] = {}

@@ -42,9 +42,10 @@ def label(scene, tracks, values: dict) -> dict:
     ramp = {"mass_kg": None, "friction": float(values["k1"])}
     out = {"ramp": ramp}
     if scene.target is not None and "m2_kg" in values:
-        if collision_seen(tracks):
+        hit = collision_seen(tracks)
+        if hit:
             ramp["mass_kg"] = float(values["m1_kg"] / values["m2_kg"] * scene.target.mass_kg)
-        out["target"] = {"mass_kg": None, "friction": float(values["k2"]) if collision_seen(tracks) else None}
+        out["target"] = {"mass_kg": None, "friction": float(values["k2"]) if hit else None}
     return out
 
 
