@@ -6,6 +6,7 @@ with code 2; no traceback.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from .errors import GalileoError, run_reporting_errors
@@ -81,6 +82,8 @@ def cmd_track(args: argparse.Namespace) -> int:
     summary = ", ".join(f"{o.name} ({o.role}): {o.shape.type}, seen in {int(o.visible.sum())}/{len(o.visible)} frames"
                         for o in tracks.objects)
     print(f"wrote {args.out}: {summary}")
+    for note in tracks.notes:
+        print(f"note: {note}")
     if args.debug_video:
         print(f"wrote {args.debug_video}")
     return 0
@@ -101,7 +104,10 @@ def cmd_infer(args: argparse.Namespace) -> int:
     cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
                     sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps, seed=args.seed,
                     workers=args.workers, noise=args.sigma, speedups=not args.no_speedups, narrow=args.narrow,
-                    broad=args.broad, broad_every=args.broad_every)
+                    broad=args.broad, broad_every=args.broad_every, moves=args.moves, warmup=args.warmup,
+                    until_rhat=args.until_rhat, min_ess=args.min_ess, max_sweeps=args.max_sweeps)
+    if args.max_sweeps is not None and args.until_rhat is None:
+        raise GalileoError("--max-sweeps is the budget of --until-rhat; without it, use --sweeps")
     cfg.check()
     try:
         cfg.settings(scenario.latents(scene), scenario.noise)
@@ -129,10 +135,30 @@ def cmd_infer(args: argparse.Namespace) -> int:
         init = recognition_init(model, args.video, scene, tracks, args.recognition_move or 0,
                                 source=str(args.model or "built-in"))
     result = infer(scene, tracks, cfg, progress=not args.quiet, init=init)
+    result.notes = tuple(getattr(tracks, "notes", ()) or ())
     npz = result.save(args.out)
+    for note in result.notes:
+        print(f"note: {note}")
     print(f"MAP: {scenario.summary(result.scene, result.map)}")
+    derived = result.derived_posterior()
+    for k, v in derived.items():
+        if not k.startswith("log_"):
+            print(f"posterior {k}: {v['q50']:.3g} (90%: {v['q05']:.3g}-{v['q95']:.3g})")
+    diag = result.diagnostics()
+    print(f"{'converged' if diag['converged'] else 'NOT converged'} after {diag['sweeps']} sweeps "
+          f"({convergence_line(diag)})")
     print(f"wrote {args.out} and {npz} ({result.timing_s['wall']:.1f} s, {result.steps} physics steps)")
+    warning = result.warning()
+    if warning:
+        print(f"galileo: warning: {warning}", file=sys.stderr)
     return 0
+
+
+def convergence_line(diag: dict) -> str:
+    rs = [v for v in diag["r_hat"].values() if v is not None]
+    es = [v for d in (diag["ess"], diag["ess_tail"]) for v in d.values() if v is not None]
+    return (f"R-hat max {max(rs):.3f}" if rs else "R-hat n/a") + (f", ESS min {min(es):.0f}" if es else "") + \
+        f"; targets R-hat <= {diag['rhat_target']:g}, ESS >= {diag['min_ess']:g}"
 
 
 def cmd_predict(args: argparse.Namespace) -> int:
@@ -148,6 +174,9 @@ def cmd_predict(args: argparse.Namespace) -> int:
     if args.out:
         write_json(args.out, out)
     print(text)
+    if isinstance(d, dict) and d.get("converged") is False:
+        print("galileo: warning: these posterior shares come from chains that have not converged "
+              f"({(d.get('why_not') or ['?'])[0]}); trust the MAP answer, not the shares", file=sys.stderr)
     return 0
 
 
@@ -249,8 +278,8 @@ def cmd_recognize_predict(args: argparse.Namespace) -> int:
 
         try:
             tracks = scenario.track(args.video, scene, progress=False)
-        except StillVideo:
-            tracks = None   # a still video: read the objects where the scene file puts them
+        except StillVideo:   # a tracker that refuses a still video (splash; the ramp's tracks it, with a note)
+            tracks = None    # read the objects where the scene file puts them
     readings = model.read_video(args.video, scene, tracks)
     out = {"model": str(args.model or "built-in"), "labels": model.meta.get("labels"),
            "objects": {role: r.to_json() for role, r in readings.items()}}
@@ -264,6 +293,8 @@ def cmd_recognize_predict(args: argparse.Namespace) -> int:
               if "friction" in j else "")
         print(f"{role}: mass {j['mass_kg']:.3g} kg (90%: {j['mass_kg_90'][0]:.3g}-{j['mass_kg_90'][1]:.3g}), "
               f"{fr}from {r.patches} patch(es)")
+    for note in (tracks.notes if tracks is not None else []):
+        print(f"note: {note}")
     return 0
 
 
@@ -349,6 +380,17 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--recognition-move", type=int, metavar="EVERY", default=None,
                    help="with --init recognition: also propose the whole latent vector from the recognition "
                         "model every EVERY sweeps (an exact independence MH move)")
+    i.add_argument("--moves", choices=["default", "paper"], default="default",
+                   help="default: widths adapted in a warm-up plus the scenario's exact joint moves (ramp: k1 from "
+                        "the tracked acceleration, mass-ratio moves); paper: Galileo section 3.2 exactly")
+    i.add_argument("--warmup", type=int, default=None,
+                   help="warm-up sweeps in which widths adapt (default: half of --sweeps; dropped with the burn-in)")
+    i.add_argument("--until-rhat", type=float, default=None, metavar="R",
+                   help="after --sweeps, run on until every latent's rank-normalised split R-hat <= R and its "
+                        "bulk and tail ESS >= --min-ess (e.g. 1.01), or until --max-sweeps")
+    i.add_argument("--min-ess", type=float, default=400.0, help="ESS every latent needs (default 400)")
+    i.add_argument("--max-sweeps", type=int, default=None,
+                   help="the sweep budget of --until-rhat (default: 20 x --sweeps)")
     i.add_argument("--out", required=True, help="result JSON (the sample record goes beside it as .samples.npz)")
     i.add_argument("--quiet", action="store_true", help="no progress bars")
     i.set_defaults(func=cmd_infer)

@@ -47,6 +47,7 @@ class ObjectTrack:
 class Tracks:
     fps: float
     objects: list[ObjectTrack]
+    notes: list[str] = field(default_factory=list)   # what the tracker wants the user to know (one line each)
 
     @property
     def n_frames(self) -> int:
@@ -60,7 +61,10 @@ class Tracks:
         return next((o for o in self.objects if o.role == role), None)
 
     def to_json(self) -> dict:
-        return {"fps": self.fps, "time_s": self.time_s.tolist(), "objects": [o.to_json() for o in self.objects]}
+        d = {"fps": self.fps, "time_s": self.time_s.tolist(), "objects": [o.to_json() for o in self.objects]}
+        if self.notes:
+            d["notes"] = [str(n) for n in self.notes]
+        return d
 
     def save(self, path: str | Path) -> None:
         write_json(path, self.to_json(), indent=None)
@@ -82,7 +86,10 @@ class Tracks:
                     raise TypeError("bottom_up must be an object")
                 objs.append(ObjectTrack(o["name"], o["role"], pos, vel, vis, shape, o.get("offset_units"),
                                         o.get("detected_by", "motion"), bottom_up))
-            return cls(float(d["fps"]), objs)
+            notes = d.get("notes", [])
+            if not isinstance(notes, list) or not all(isinstance(n, str) for n in notes):
+                raise TypeError("notes must be a list of strings")
+            return cls(float(d["fps"]), objs, list(notes))
         except (KeyError, TypeError, ValueError, IndexError) as e:
             raise GalileoError(f"malformed tracks JSON: {e}") from None
 

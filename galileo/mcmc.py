@@ -163,38 +163,144 @@ class Independence(NamedTuple):
         return total
 
 
+def step_move(rng: np.random.Generator, state: MHState, move, logdensity: LogDensity, bounds: np.ndarray,
+              early_rejection: bool = True, site_code: int = -1, hastings: bool = True) -> tuple[MHState, MHInfo]:
+    """One MH update by a joint `move` (anything with `propose(rng, position) -> (proposal,
+    log_hastings)`, log_hastings = log q(x | x') - log q(x' | x) plus any Jacobian): accepted
+    with probability min(1, p(x') / p(x) * exp(log_hastings)). The uniform is drawn after the
+    proposal and before the evaluation, so early rejection is exact (threshold = log p(x) +
+    log u - log_hastings). Out-of-bounds proposals are rejected without evaluating the target.
+    `hastings=False` drops the factor (a wrong sampler, for negative-control tests only)."""
+    proposal, log_h = move.propose(rng, state.position)
+    log_u = math.log(rng.uniform())  # drawn before the evaluation (and always: same stream either way)
+    bounds = np.asarray(bounds, float)
+    if not np.all((bounds[:, 0] <= proposal) & (proposal <= bounds[:, 1])) or not log_h > -math.inf:
+        return state, MHInfo(site_code, proposal, -math.inf, False, math.nan, False)
+    threshold = state.logdensity + log_u - (float(log_h) if hastings else 0.0)
+    result = logdensity(proposal, threshold) if early_rejection else logdensity(proposal)
+    value, early = (float(result[0]), bool(result[1])) if isinstance(result, tuple) else (float(result), False)
+    accepted = (not early) and value >= threshold and value > -math.inf
+    new = MHState(proposal, value, state.sweep) if accepted else state
+    return new, MHInfo(site_code, proposal, value, accepted, math.nan, early)
+
+
 def step_independence(rng: np.random.Generator, state: MHState, q: Independence, logdensity: LogDensity,
                       bounds: np.ndarray, early_rejection: bool = True, hastings: bool = True) -> tuple[MHState, MHInfo]:
     """One independence MH update of all latents: x' ~ q, accepted with probability
     min(1, p(x') q(x) / (p(x) q(x'))). `hastings=False` drops the q terms (a wrong sampler, for
     tests only). Out-of-bounds proposals are rejected without evaluating the target."""
     q.check(len(state.position))
-    proposal = q.sample(rng)
-    log_u = math.log(rng.uniform())  # drawn before the evaluation (and always: same stream either way)
-    bounds = np.asarray(bounds, float)
-    if not np.all((bounds[:, 0] <= proposal) & (proposal <= bounds[:, 1])):
-        return state, MHInfo(-1, proposal, -math.inf, False, math.nan, False)
-    log_ratio_q = 0.0
-    if hastings:
-        lq_new = q.logpdf(proposal)
-        if not lq_new > -math.inf:  # a draw on the edge of q's support (probability zero)
-            return state, MHInfo(-1, proposal, -math.inf, False, math.nan, False)
-        log_ratio_q = q.logpdf(state.position) - lq_new  # -inf when x is outside q's support: no move
-    threshold = state.logdensity + log_u - log_ratio_q
-    result = logdensity(proposal, threshold) if early_rejection else logdensity(proposal)
-    value, early = (float(result[0]), bool(result[1])) if isinstance(result, tuple) else (float(result), False)
-    accepted = (not early) and value >= threshold and value > -math.inf
-    new = MHState(proposal, value, state.sweep) if accepted else state
-    return new, MHInfo(-1, proposal, value, accepted, math.nan, early)
+    return step_move(rng, state, q, logdensity, bounds, early_rejection, -1, hastings)
+
+
+# -- joint moves: each proposes and returns its own log Hastings factor ---------------------------
+
+def _independence_propose(self: Independence, rng: np.random.Generator, position) -> tuple[np.ndarray, float]:
+    x = self.sample(rng)
+    lq_new = self.logpdf(x)
+    if not lq_new > -math.inf:  # a draw on the edge of q's support (probability zero)
+        return x, -math.inf
+    return x, self.logpdf(position) - lq_new   # -inf when x is outside q's support: no move
+
+
+Independence.propose = _independence_propose
+Independence.name = "independence"
+
+
+class SiteMixture(NamedTuple):
+    """Propose one latent (`site`) afresh from a fixed mixture, the others unchanged: with
+    probability `weight` from N(loc, scale), else uniformly on [low, high] (a defensive
+    component, e.g. the prior's support). An independence move within one coordinate:
+    log Hastings = log q(x_site) - log q(x'_site)."""
+    site: int
+    weight: float
+    loc: float
+    scale: float
+    low: float
+    high: float
+    every: int = 1
+    name: str = "site_mixture"
+
+    def logq(self, v: float) -> float:
+        z = (v - self.loc) / self.scale
+        dens = self.weight * math.exp(-0.5 * z * z) / (self.scale * math.sqrt(2 * math.pi))
+        if self.low <= v <= self.high:
+            dens += (1.0 - self.weight) / (self.high - self.low)
+        return math.log(dens) if dens > 0 else -math.inf
+
+    def propose(self, rng: np.random.Generator, position) -> tuple[np.ndarray, float]:
+        x = np.asarray(position, float).copy()
+        if rng.uniform() < self.weight:
+            v = rng.normal(self.loc, self.scale)
+        else:
+            v = rng.uniform(self.low, self.high)
+        old = float(x[self.site])
+        x[self.site] = v
+        lq_new = self.logq(v)
+        return x, (self.logq(old) - lq_new) if lq_new > -math.inf else -math.inf
+
+
+class LogScale(NamedTuple):
+    """Scale some latents together: u ~ U(-width, width), x'_i = x_i * exp(sign_i * u) for
+    i in `sites`. For two masses, signs (1, 1) change their product and keep their ratio;
+    (1, -1) change their ratio and keep their product. The map is symmetric in log space; in
+    the latents' own (linear) space its Jacobian gives log Hastings = u * sum(signs). The
+    latents must be > 0 (a proposal from x_i <= 0 is refused)."""
+    sites: tuple[int, ...]
+    signs: tuple[float, ...]
+    width: float
+    every: int = 1
+    name: str = "log_scale"
+
+    def propose(self, rng: np.random.Generator, position) -> tuple[np.ndarray, float]:
+        x = np.asarray(position, float).copy()
+        u = rng.uniform(-self.width, self.width)
+        if any(x[i] <= 0 for i in self.sites):
+            return x, -math.inf
+        for i, s in zip(self.sites, self.signs):
+            x[i] = x[i] * math.exp(s * u)
+        return x, u * float(sum(self.signs))
+
+    def adapted(self, accepted: bool, eta: float) -> "LogScale":
+        """The width after one warm-up update towards acceptance TARGET_ACCEPTANCE."""
+        return self._replace(width=float(min(5.0, max(1e-4, self.width * math.exp(eta * (accepted - TARGET_ACCEPTANCE))))))
+
+
+TARGET_ACCEPTANCE = 0.44   # warm-up adapts random-walk widths towards this (1-D optimum, Roberts & Rosenthal)
+
+
+def adapt_rate(sweep_number: int) -> float:
+    """The Robbins-Monro step of warm-up sweep `sweep_number` (1-based): diminishing."""
+    return 1.0 / sweep_number ** 0.6
+
+
+def adapt_proposal(proposal: Proposal, infos: Sequence[MHInfo], sweep_number: int, bounds: np.ndarray) -> Proposal:
+    """Warm-up: each continuous latent's narrow half-width multiplied by exp(eta (a - 0.44)),
+    a its proposal's acceptance in this sweep (broad sweeps leave widths alone). Kept between
+    1e-6 and 1 times the prior's width. After warm-up the widths are frozen, so the kept draws
+    come from one fixed, exact kernel."""
+    if proposal.broad_every and sweep_number % proposal.broad_every == 0:
+        return proposal
+    n = len(bounds)
+    w = list(proposal.narrow) if isinstance(proposal.narrow, (list, tuple, np.ndarray)) else [float(proposal.narrow)] * n
+    eta = adapt_rate(sweep_number)
+    for info in infos:
+        j = info.site
+        if j < 0 or j in proposal.integer_sites:
+            continue
+        span = float(bounds[j, 1] - bounds[j, 0])
+        w[j] = float(min(span, max(1e-6 * span, w[j] * math.exp(eta * (float(info.accepted) - TARGET_ACCEPTANCE)))))
+    return proposal._replace(narrow=tuple(w))
 
 
 def sweep(rng: np.random.Generator, state: MHState, logdensity: LogDensity, bounds: np.ndarray,
           proposal: Proposal = Proposal(), early_rejection: bool = True,
           sites: Sequence[int] | None = None, *,
-          independence: Independence | None = None) -> tuple[MHState, list[MHInfo]]:
+          independence: Independence | None = None, moves: Sequence = ()) -> tuple[MHState, list[MHInfo]]:
     """One sweep: each latent (or each of `sites`) proposed once, in order; then, if
     `independence` is given and this sweep's number is a multiple of its `every`, one
-    independence move of all latents (its info last, site -1)."""
+    independence move of all latents (its info's site -1); then each of `moves` whose `every`
+    divides the sweep's number, in order (move k's info has site -(k + 2))."""
     number = state.sweep + 1
     infos = []
     for site in (range(len(state.position)) if sites is None else sites):
@@ -204,7 +310,16 @@ def sweep(rng: np.random.Generator, state: MHState, logdensity: LogDensity, boun
     if independence is not None and number % independence.every == 0:
         state, info = step_independence(rng, state, independence, logdensity, bounds, early_rejection)
         infos.append(info)
+    for k, move in enumerate(moves):
+        if number % move.every == 0:
+            state, info = step_move(rng, state, move, logdensity, bounds, early_rejection, move_code(k))
+            infos.append(info)
     return state._replace(sweep=number), infos
+
+
+def move_code(k: int) -> int:
+    """The `site` an info of joint move k (of a sweep's `moves`) is recorded under."""
+    return -(k + 2)
 
 
 def chain_rng(seed: int, chain: int) -> np.random.Generator:
@@ -214,8 +329,9 @@ def chain_rng(seed: int, chain: int) -> np.random.Generator:
 
 def run_chain(seed: int, chain: int, init_position: Sequence[float], logdensity: LogDensity, bounds,
               n_sweeps: int, proposal: Proposal = Proposal(), early_rejection: bool = True, *,
-              independence: Independence | None = None):
-    """A whole chain: returns (positions after each sweep (S, D), logdensities (S,), infos)."""
+              independence: Independence | None = None, moves: Sequence = (), warmup: int = 0):
+    """A whole chain: returns (positions after each sweep (S, D), logdensities (S,), infos).
+    During the first `warmup` sweeps the narrow widths (and moves' widths) adapt."""
     rng = chain_rng(seed, chain)
     bounds = np.asarray(bounds, float)
     state = init(init_position, logdensity)
@@ -223,8 +339,24 @@ def run_chain(seed: int, chain: int, init_position: Sequence[float], logdensity:
         independence.check(len(state.position))
     positions, values, infos = [], [], []
     for _ in range(n_sweeps):
-        state, inf = sweep(rng, state, logdensity, bounds, proposal, early_rejection, independence=independence)
+        state, inf = sweep(rng, state, logdensity, bounds, proposal, early_rejection, independence=independence,
+                           moves=moves)
+        if state.sweep <= warmup:
+            proposal, moves = adapt(proposal, moves, inf, state.sweep, bounds)
         positions.append(state.position.copy())
         values.append(state.logdensity)
         infos.extend(inf)
     return np.array(positions), np.array(values), infos
+
+
+def adapt(proposal: Proposal, moves: Sequence, infos: Sequence[MHInfo], sweep_number: int,
+          bounds: np.ndarray) -> tuple[Proposal, tuple]:
+    """One warm-up update of the single-site widths and of every move that can adapt."""
+    proposal = adapt_proposal(proposal, infos, sweep_number, bounds)
+    moves = list(moves)
+    eta = adapt_rate(sweep_number)
+    for info in infos:
+        k = -info.site - 2
+        if 0 <= k < len(moves) and hasattr(moves[k], "adapted"):
+            moves[k] = moves[k].adapted(bool(info.accepted), eta)
+    return proposal, tuple(moves)

@@ -145,6 +145,13 @@ class Scenario(ABC):
                 starts[:, j] = np.clip(np.round(starts[:, j]), bounds[j, 0], bounds[j, 1])
         return starts
 
+    def moves(self, prepared_scene, tracks: Tracks, latents: Sequence[Latent], bounds: np.ndarray) -> tuple:
+        """Joint Metropolis-Hastings moves (galileo.mcmc: `SiteMixture`, `LogScale`, or anything
+        with `propose(rng, position) -> (proposal, log_hastings)`, `every` and `name`) that help
+        this scenario's chains mix; each must be exact (carry its Hastings factor). Used by the
+        default move set, never by `--moves paper`. Default: none."""
+        return ()
+
     def with_values(self, scene, values: dict[str, float]):
         """A copy of the scene with latents (and scenario knobs) set; SceneError on an unknown name."""
         return scene.with_values(values)

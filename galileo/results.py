@@ -1,8 +1,12 @@
 """Inference results: MAP, posterior summaries, diagnostics (arviz-stats), save and load.
 
 `diagnostics` is the one place R-hat and ESS are computed, for the batch result and for the
-app's live status alike: over the chains' second halves (burn-in: the first half), each cut
-to the shortest, needing at least 2 chains of at least 4 kept draws and a latent that moved.
+app's live status alike: over the chains' kept draws (burn-in: the first half, or the warm-up
+if longer), each cut to the shortest, needing at least 2 chains of at least 4 kept draws and
+a latent that moved. R-hat is arviz-stats' rank-normalised split R-hat (Vehtari et al. 2021);
+ESS its bulk and tail ESS. `convergence` turns them into a verdict: converged when every
+latent's R-hat is at most RHAT_TARGET (1.01) and its bulk and tail ESS at least MIN_ESS
+(400), and otherwise the reasons why not.
 
 Files: `result.json` (MAP, posterior, diagnostics, settings, the scene inferred on) and,
 beside it, `<stem>.samples.npz`, the full record (no pickle): names, samples (C, S, D),
@@ -24,38 +28,84 @@ from .jsonio import atomic_write_bytes, write_json
 
 MIN_KEPT_DRAWS = 4
 BURN_IN_FRACTION = 0.5  # posterior summaries and R-hat/ESS use the second half of each chain
+RHAT_TARGET = 1.01      # what "converged" means (Vehtari et al. 2021)
+MIN_ESS = 400           # bulk and tail ESS, per latent
 
 
-def burn_in(n_sweeps: int) -> int:
-    """Sweeps dropped from the start of a chain of `n_sweeps` before summarising it."""
-    return int(n_sweeps * BURN_IN_FRACTION)
+def burn_in(n_sweeps: int, warmup: int = 0) -> int:
+    """Sweeps dropped from the start of a chain of `n_sweeps` before summarising it: the first
+    half, or the warm-up (widths adapting) if that is longer."""
+    return min(int(n_sweeps), max(int(n_sweeps * BURN_IN_FRACTION), int(warmup)))
+
+
+def _stack(kept: Sequence[np.ndarray]) -> np.ndarray | None:
+    kept = [k for k in kept if len(k) >= MIN_KEPT_DRAWS]
+    if len(kept) < 2:
+        return None
+    length = min(len(k) for k in kept)
+    return np.stack([k[len(k) - length:] for k in kept])   # (chains, draws, D)
 
 
 def rhat_ess(kept: Sequence[np.ndarray], names: Sequence[str]) -> tuple[dict, dict]:
-    """Split R-hat and bulk ESS per latent from per-chain kept draws (each (n_i, D)); None
-    where they cannot be computed (fewer than 2 chains of MIN_KEPT_DRAWS, a constant latent)."""
-    r_hat = {n: None for n in names}
-    ess = {n: None for n in names}
-    kept = [k for k in kept if len(k) >= MIN_KEPT_DRAWS]
-    if len(kept) < 2:
-        return r_hat, ess
+    """Rank-normalised split R-hat and bulk ESS per latent from per-chain kept draws (each
+    (n_i, D)); None where they cannot be computed (fewer than 2 chains of MIN_KEPT_DRAWS, a
+    constant latent)."""
+    d = chain_stats(kept, names)
+    return d["r_hat"], d["ess_bulk"]
+
+
+def chain_stats(kept: Sequence[np.ndarray], names: Sequence[str]) -> dict:
+    """{"r_hat", "ess_bulk", "ess_tail"}: per latent, None where not computable."""
+    out = {k: {n: None for n in names} for k in ("r_hat", "ess_bulk", "ess_tail")}
+    x = _stack(kept)
+    if x is None:
+        return out
     from arviz_stats.base import array_stats
 
-    length = min(len(k) for k in kept)
-    x = np.stack([k[len(k) - length:] for k in kept])   # (chains, draws, D)
     for j, n in enumerate(names):
         xj = x[..., j]
         if np.ptp(xj) > 0:
-            r, e = float(array_stats.rhat(xj, chain_axis=0, draw_axis=1)), float(
-                array_stats.ess(xj, chain_axis=0, draw_axis=1))
-            r_hat[n] = r if math.isfinite(r) else None
-            ess[n] = e if math.isfinite(e) else None
-    return r_hat, ess
+            for key, fn in (("r_hat", lambda a: array_stats.rhat(a, chain_axis=0, draw_axis=1)),
+                            ("ess_bulk", lambda a: array_stats.ess(a, chain_axis=0, draw_axis=1, method="bulk")),
+                            ("ess_tail", lambda a: array_stats.ess(a, chain_axis=0, draw_axis=1, method="tail", prob=(0.05, 0.95)))):
+                v = float(fn(xj))
+                out[key][n] = v if math.isfinite(v) else None
+    return out
 
 
-def kept_draws(samples: Sequence[np.ndarray]) -> list[np.ndarray]:
+def convergence(kept: Sequence[np.ndarray], names: Sequence[str], rhat_target: float = RHAT_TARGET,
+                min_ess: float = MIN_ESS) -> dict:
+    """The verdict on per-chain kept draws: {"converged", "why_not" (one line per failing
+    latent), "per_latent" {name: True/False}, "r_hat", "ess_bulk", "ess_tail", "rhat_target",
+    "min_ess", "summary" (one short line)}."""
+    st = chain_stats(kept, names)
+    why, ok = [], {}
+    for n in names:
+        r, eb, et = st["r_hat"][n], st["ess_bulk"][n], st["ess_tail"][n]
+        if r is None:
+            why.append(f"{n}: R-hat cannot be computed (fewer than 2 chains of {MIN_KEPT_DRAWS} kept draws, "
+                       "or the latent never moved)")
+            ok[n] = False
+            continue
+        parts = []
+        if r > rhat_target:
+            parts.append(f"R-hat {r:.3f} > {rhat_target:g}")
+        low = min(x for x in (eb, et) if x is not None) if (eb is not None or et is not None) else None
+        if low is None or low < min_ess:
+            parts.append(f"ESS {0 if low is None else low:.0f} < {min_ess:g}")
+        ok[n] = not parts
+        if parts:
+            why.append(f"{n}: " + ", ".join(parts))
+    rs = [v for v in st["r_hat"].values() if v is not None]
+    es = [v for d in (st["ess_bulk"], st["ess_tail"]) for v in d.values() if v is not None]
+    summary = (f"R-hat max {max(rs):.3f}" if rs else "R-hat n/a") + (f", ESS min {min(es):.0f}" if es else "")
+    return {"converged": not why, "why_not": why, "per_latent": ok, **st, "rhat_target": float(rhat_target),
+            "min_ess": float(min_ess), "summary": summary}
+
+
+def kept_draws(samples: Sequence[np.ndarray], warmup: int = 0) -> list[np.ndarray]:
     """Each chain's samples after burn-in."""
-    return [s[burn_in(len(s)):] for s in samples]
+    return [s[burn_in(len(s), warmup):] for s in samples]
 
 
 @dataclass
@@ -72,6 +122,9 @@ class InferenceResult:
     steps: int
     scene: object                # the scene inferred on (what tracking fixed put in)
     init: dict | None = None     # how chains started (prior / recognition: the readings) and extra moves
+    warmup: int = 0              # sweeps of width adaptation (dropped from the summaries with the burn-in)
+    moves: dict | None = None    # {"set": default|paper, "joint": names, "codes": {name: site code}, "adapted"}
+    notes: tuple = ()            # what the observations say about themselves (e.g. nothing moves), shown to users
 
     @property
     def map_index(self) -> tuple[int, int]:
@@ -88,31 +141,76 @@ class InferenceResult:
         return float(self.logliks.max())
 
     def kept(self) -> np.ndarray:
-        return self.samples[:, burn_in(self.samples.shape[1]):]
+        return self.samples[:, burn_in(self.samples.shape[1], self.warmup):]
+
+    def kept_logliks(self) -> np.ndarray:
+        return self.logliks[:, burn_in(self.logliks.shape[1], self.warmup):]
+
+    def convergence(self) -> dict:
+        cfg = self.config
+        return convergence(list(self.kept()), self.names, getattr(cfg, "until_rhat", None)
+                           or getattr(cfg, "rhat_target", RHAT_TARGET), getattr(cfg, "min_ess", MIN_ESS))
+
+    def derived_posterior(self) -> dict[str, dict]:
+        """Posterior summaries of the scenario's derived quantities (e.g. the ramp's mass
+        ratio, the identified quantity), one value per kept draw; a positive quantity also gets
+        its log's summary (`log_<name>`)."""
+        scenario = registry.get(self.scenario)
+        kept = self.kept().reshape(-1, len(self.names))
+        values: dict[str, list] = {}
+        for row in kept:
+            for k, v in scenario.derived(self.scene, dict(zip(self.names, map(float, row)))).items():
+                if v is not None:
+                    values.setdefault(k, []).append(float(v))
+        out = {}
+        for k, v in values.items():
+            x = np.asarray(v)
+            if len(x) != len(kept) or not np.all(np.isfinite(x)):
+                continue
+            out[k] = _summary(x)
+            if np.all(x > 0):
+                out[f"log_{k}"] = _summary(np.log(x))
+        return out
+
+    def per_chain(self) -> list[dict]:
+        """Per chain: acceptance, its kept log-likelihood (median, max), its kept mean of each
+        latent, and the first sweep within 1 nat of the MAP."""
+        kept, ll = self.kept(), self.kept_logliks()
+        acc = self.proposals["accepted"]
+        to_map = sweeps_to_map(self.logliks)["per_chain"]
+        out = []
+        for c in range(self.samples.shape[0]):
+            out.append({"chain": c, "acceptance": float(acc[c].mean()) if acc[c].size else None,
+                        "loglik_kept_median": float(np.median(ll[c])) if ll[c].size else None,
+                        "loglik_kept_max": float(ll[c].max()) if ll[c].size else None,
+                        "mean": {n: float(kept[c, :, j].mean()) for j, n in enumerate(self.names)} if kept.shape[1] else None,
+                        "sweeps_to_map_1nat": to_map[c]})
+        return out
 
     def posterior(self) -> dict[str, dict]:
         kept = self.kept()
-        out = {}
-        for j, n in enumerate(self.names):
-            x = kept[..., j].ravel()
-            q5, q50, q95 = np.quantile(x, [0.05, 0.5, 0.95])
-            out[n] = {"mean": float(x.mean()), "sd": float(x.std(ddof=1)) if x.size > 1 else 0.0,
-                      "q05": float(q5), "q50": float(q50), "q95": float(q95)}
-        return out
+        return {n: _summary(kept[..., j].ravel()) for j, n in enumerate(self.names)}
 
     def diagnostics(self) -> dict:
-        r_hat, ess = rhat_ess(list(self.kept()), self.names)
+        conv = self.convergence()
         site, accepted = self.proposals["site"], self.proposals["accepted"]
         acc = {}
         for j, n in enumerate(self.names):
             sel = site == j
             acc[n] = float(accepted[sel].mean()) if sel.any() else None
-        if (site == -1).any():   # the joint independence move (--recognition-move)
-            acc["independence_move"] = float(accepted[site == -1].mean())
-        return {"r_hat": r_hat, "ess": ess, "acceptance": acc, "acceptance_all": float(accepted.mean()),
+        codes = (self.moves or {}).get("codes") or ({"independence": -1} if (site == -1).any() else {})
+        for name, code in codes.items():   # joint moves: the independence move, the scenario's moves
+            sel = site == code
+            if sel.any():
+                acc[f"{name}_move"] = float(accepted[sel].mean())
+        return {"r_hat": conv["r_hat"], "ess": conv["ess_bulk"], "ess_tail": conv["ess_tail"],
+                "converged": conv["converged"], "why_not": conv["why_not"], "per_latent_converged": conv["per_latent"],
+                "rhat_target": conv["rhat_target"], "min_ess": conv["min_ess"],
+                "acceptance": acc, "acceptance_all": float(accepted.mean()),
                 "sweeps_to_map_1nat": sweeps_to_map(self.logliks),
                 "early_stopped": float(self.proposals["early_stop"].mean()), "physics_steps": int(self.steps),
-                "burn_in_sweeps": burn_in(self.samples.shape[1])}
+                "burn_in_sweeps": burn_in(self.samples.shape[1], self.warmup), "warmup_sweeps": int(self.warmup),
+                "sweeps": int(self.samples.shape[1]), "per_chain": self.per_chain()}
 
     def derived(self) -> dict:
         return registry.get(self.scenario).derived(self.scene, self.map)
@@ -127,11 +225,27 @@ class InferenceResult:
                   st.noise_spec.name: st.noise, "sigma_is": f"standard deviation ({st.noise_spec.unit})",
                   "speedups": cfg.speedups,
                   "proposal": {"narrow": _plain(p.narrow), "broad": _plain(p.broad), "broad_every": p.broad_every},
-                  "bounds": {k: list(v) for k, v in st.bounds.items()}}
+                  "bounds": {k: list(v) for k, v in st.bounds.items()},
+                  "moves": self.moves or {"set": getattr(cfg, "moves", "paper")},
+                  "until_rhat": getattr(cfg, "until_rhat", None), "min_ess": getattr(cfg, "min_ess", None),
+                  "max_sweeps": cfg.sweep_budget() if getattr(cfg, "until_rhat", None) else None}
+        diag = self.diagnostics()
         return {"scenario": self.scenario, "map": self.map, "map_loglik": self.map_loglik, **self.derived(),
+                "converged": diag["converged"], "why_not": diag["why_not"], "notes": list(self.notes),
                 "init": self.init or {"starts": "prior"},
-                "posterior": self.posterior(), "diagnostics": self.diagnostics(), "timing_s": self.timing_s,
+                "posterior": self.posterior(), "posterior_derived": self.derived_posterior(),
+                "diagnostics": diag, "timing_s": self.timing_s,
                 "config": config, "latents": list(self.names), "scene": self.scene.to_json(), "samples_file": None}
+
+    def warning(self) -> str | None:
+        """One line for users when the posterior comes from chains that have not converged."""
+        diag = self.convergence()
+        if diag["converged"]:
+            return None
+        first = diag["why_not"][0]
+        more = f" (and {len(diag['why_not']) - 1} more)" if len(diag["why_not"]) > 1 else ""
+        return (f"the posterior is not converged: {first}{more}; the MAP may still be good, but intervals and "
+                "shares are not to be trusted (run longer: --until-rhat 1.01 --max-sweeps N)")
 
     def save(self, result_path: str | Path) -> Path:
         """result.json and, beside it, the full record as <stem>.samples.npz (no pickle)."""
@@ -163,6 +277,13 @@ def sweeps_to_map(logliks: np.ndarray, within_nats: float = 1.0, reference: floa
     return {"per_chain": per_chain, "median": med if med is not None and np.isfinite(med) else None,
             "never": float(np.mean([v is None for v in per_chain])) if per_chain else None,
             "within_nats": within_nats}
+
+
+def _summary(x: np.ndarray) -> dict:
+    x = np.asarray(x, float).ravel()
+    q5, q25, q50, q75, q95 = np.quantile(x, [0.05, 0.25, 0.5, 0.75, 0.95])
+    return {"mean": float(x.mean()), "sd": float(x.std(ddof=1)) if x.size > 1 else 0.0,
+            "q05": float(q5), "q25": float(q25), "q50": float(q50), "q75": float(q75), "q95": float(q95)}
 
 
 def _plain(w):

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import multiprocessing as mp
 import os
 import time
@@ -34,8 +35,10 @@ from . import registry
 from .datatypes import Tracks
 from .errors import GalileoError
 from .latents import Latent, Noise, by_name, check_bounds, check_noise, check_widths, default_widths
-from .mcmc import MHState, Proposal, chain_rng, sweep
-from .results import InferenceResult
+from .mcmc import MHState, Proposal, adapt, chain_rng, sweep
+from .results import MIN_ESS, RHAT_TARGET, InferenceResult, convergence, kept_draws
+
+MOVE_SETS = ("default", "paper")
 
 def initial_positions(bounds: np.ndarray, n_chains: int, seed: int) -> np.ndarray:
     """Chain starts drawn uniformly from the prior (reproducible from the seed)."""
@@ -133,6 +136,20 @@ class RunConfig:
     broad: float | None = None
     broad_every: int | None = None      # None: every 20th sweep is broad
     bounds: dict | None = None          # prior bounds overriding the scene's, per latent
+    moves: str = "default"              # "default": warm-up adaptation + the scenario's moves; "paper": section 3.2 as is
+    warmup: int | None = None           # sweeps of width adaptation (None: half of `sweeps`; never with "paper")
+    until_rhat: float | None = None     # run on until every latent's R-hat <= this (and ESS >= min_ess) ...
+    min_ess: float = MIN_ESS
+    max_sweeps: int | None = None       # ... or this many sweeps (None: 20 x sweeps)
+    rhat_target: float = RHAT_TARGET    # what `converged` in a result means (also without until_rhat)
+
+    def warmup_sweeps(self) -> int:
+        if self.moves == "paper":
+            return 0
+        return int(self.sweeps // 2 if self.warmup is None else self.warmup)
+
+    def sweep_budget(self) -> int:
+        return int(self.max_sweeps if self.max_sweeps is not None else max(self.sweeps, 20 * self.sweeps))
 
     def settings(self, latents: Sequence[Latent], noise: Noise) -> Settings:
         s = Settings.default(latents, noise)
@@ -153,6 +170,19 @@ class RunConfig:
             raise GalileoError(f"workers must be an integer >= 1, got {self.workers!r}")
         if int(self.seed) != self.seed or self.seed < 0:
             raise GalileoError(f"seed must be an integer >= 0, got {self.seed!r}")
+        if self.moves not in MOVE_SETS:
+            raise GalileoError(f"moves must be one of {', '.join(MOVE_SETS)}, got {self.moves!r}")
+        if self.warmup is not None and (isinstance(self.warmup, bool) or int(self.warmup) != self.warmup
+                                        or not 0 <= self.warmup <= self.sweeps):
+            raise GalileoError(f"warmup must be an integer from 0 to the sweeps ({self.sweeps}), got {self.warmup!r}")
+        for what, v, lo in (("until_rhat", self.until_rhat, 1.0), ("rhat_target", self.rhat_target, 1.0)):
+            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > lo):
+                raise GalileoError(f"{what} must be a number above {lo:g}, got {v!r}")
+        if not (isinstance(self.min_ess, (int, float)) and math.isfinite(self.min_ess) and self.min_ess >= 0):
+            raise GalileoError(f"min_ess must be a number >= 0, got {self.min_ess!r}")
+        if self.max_sweeps is not None and (isinstance(self.max_sweeps, bool) or int(self.max_sweeps) != self.max_sweeps
+                                            or self.max_sweeps < self.sweeps):
+            raise GalileoError(f"max_sweeps must be an integer >= the sweeps ({self.sweeps}), got {self.max_sweeps!r}")
 
 
 # -- the problem and the task ----------------------------------------------------------------------
@@ -186,6 +216,8 @@ class ChainTask(NamedTuple):
     noise: float
     speedups: bool = True
     independence: object = None   # a galileo.mcmc.Independence: an extra joint move (e.g. from a recognition model)
+    moves: tuple = ()             # joint moves (galileo.mcmc: SiteMixture, LogScale, ...) after each sweep's updates
+    adapt_until: int = 0          # sweeps 1..adapt_until adapt the narrow widths and the moves' widths (warm-up)
 
 
 # per-proposal record fields: name -> (dtype, one row of D values per proposal)
@@ -225,9 +257,12 @@ def run_task(task: ChainTask) -> dict:
     rng = np.random.Generator(bit_gen)
     state = MHState(pos, float(logdensity), int(task.sweep))
     positions, logliks, infos = [], [], []
+    proposal, moves = task.proposal, tuple(task.moves)
     for _ in range(task.n_sweeps):
-        state, inf = sweep(rng, state, lik, task.bounds, task.proposal, task.speedups,
-                           independence=task.independence)
+        state, inf = sweep(rng, state, lik, task.bounds, proposal, task.speedups,
+                           independence=task.independence, moves=moves)
+        if state.sweep <= task.adapt_until:
+            proposal, moves = adapt(proposal, moves, inf, state.sweep, task.bounds)
         positions.append(state.position.copy())
         logliks.append(state.logdensity)
         infos.extend(inf)
@@ -235,6 +270,7 @@ def run_task(task: ChainTask) -> dict:
     return {"chain": task.chain, "positions": np.array(positions, float).reshape(-1, dim),
             "logliks": np.array(logliks, float), "position": state.position, "logdensity": float(state.logdensity),
             "sweep": int(state.sweep), "rng": bit_gen.state, "evaluated": evaluated,
+            "proposal_state": proposal, "moves": moves,
             "site": np.array([i.site for i in infos], np.int8),
             "proposal": np.array([i.proposal for i in infos], float).reshape(-1, dim),
             "proposal_loglik": np.array([i.logdensity for i in infos], float),
@@ -245,11 +281,20 @@ def run_task(task: ChainTask) -> dict:
 
 
 def first_task(problem: Problem, chain: int, start, seed: int, n_sweeps: int, settings: Settings,
-               names: Sequence[str], speedups: bool = True, independence=None) -> ChainTask:
+               names: Sequence[str], speedups: bool = True, independence=None, moves: tuple = (),
+               adapt_until: int = 0) -> ChainTask:
     """The task that starts chain `chain` of a run seeded with `seed` at `start`."""
     return ChainTask(problem, chain, np.asarray(start, float), None, 0, chain_rng(seed, chain).bit_generator.state,
                      n_sweeps, settings.bounds_array(names), settings.proposal(), settings.noise, speedups,
-                     independence)
+                     independence, tuple(moves), int(adapt_until))
+
+
+def next_task(task: ChainTask, result: dict, n_sweeps: int) -> ChainTask:
+    """The task that runs `n_sweeps` more sweeps of the chain `result` left (its position,
+    random stream and adapted widths carried on)."""
+    return task._replace(position=np.asarray(result["position"], float), logdensity=float(result["logdensity"]),
+                         sweep=int(result["sweep"]), rng_state=result["rng"], n_sweeps=int(n_sweeps),
+                         proposal=result["proposal_state"], moves=tuple(result["moves"]))
 
 
 # -- executors ---------------------------------------------------------------------------------------
@@ -321,12 +366,25 @@ def local_executor(workers: int | None, n_tasks: int | None = None):
 
 def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=None, progress: bool = True,
           init=None):
-    """Run `config.chains` chains of `config.sweeps` sweeps on a video's tracks; an
-    `InferenceResult` (MAP, posterior, diagnostics, every proposal).
+    """Run `config.chains` chains on a video's tracks; an `InferenceResult` (MAP, posterior,
+    diagnostics, every proposal).
 
-    `init(prepared_scene, names, bounds, n_chains, seed, integer_sites) -> Init` may choose where the chains start and add
-    an independence move (`galileo.recognition.model.recognition_init`); by default chains
-    start where the scenario says (drawn from the prior)."""
+    Moves (`config.moves`): "paper" is section 3.2 as published (single-site uniform proposals,
+    a broad sweep every 20th). "default" adds, during the first `warmup` sweeps, adaptation of
+    each latent's narrow width towards acceptance 0.44, and the scenario's own joint moves
+    (`Scenario.moves`, e.g. the ramp's k1 from the tracked acceleration and its mass-ratio
+    moves), each exact; the kept draws (after max(warm-up, half the chain)) come from one
+    fixed kernel.
+
+    With `config.until_rhat`, chains run `config.sweeps` sweeps and then on, in blocks of half
+    what they have done (at least 25), until every latent's rank-normalised split R-hat is at
+    most `until_rhat` and its bulk and tail ESS at least `min_ess`, or until `max_sweeps`.
+    A chain's draws depend only on (seed, chain, settings): how the sweeps are cut into blocks
+    does not change them.
+
+    `init(prepared_scene, names, bounds, n_chains, seed, integer_sites) -> Init` may choose
+    where the chains start and add an independence move (`galileo.recognition.model.recognition_init`);
+    by default chains start where the scenario says (drawn from the prior)."""
     cfg = config or RunConfig()
     cfg.check()
     t0 = time.perf_counter()
@@ -346,33 +404,82 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
             raise GalileoError("chain starts must be one point per chain inside the prior's bounds")
     else:
         starts = scenario.initial_positions(prepared, latents, bounds, cfg.chains, cfg.seed)
-    move = chosen.independence if chosen is not None else None
+    independence = chosen.independence if chosen is not None else None
+    moves = tuple(scenario.moves(prepared, tracks, latents, bounds)) if cfg.moves == "default" else ()
+    warmup = cfg.warmup_sweeps()
     problem = Problem.of(scene, tracks)
-    tasks = [first_task(problem, c, starts[c], cfg.seed, cfg.sweeps, settings, names, cfg.speedups, move)
-             for c in range(cfg.chains)]
+    tasks = [first_task(problem, c, starts[c], cfg.seed, cfg.sweeps, settings, names, cfg.speedups, independence,
+                        moves, warmup) for c in range(cfg.chains)]
     own = executor is None
     if own:
         executor = local_executor(cfg.workers, cfg.chains)
     workers = getattr(executor, "workers", 1)
-    results = []
+    done: list[list[dict]] = [[] for _ in range(cfg.chains)]
+    budget = cfg.sweep_budget() if cfg.until_rhat else cfg.sweeps
+    status = None
     try:
-        with tqdm(total=cfg.chains, desc="chains", unit="chain", disable=not progress) as bar:
-            for r in executor.map(run_task, tasks):
-                results.append(r)
-                bar.update()
+        with tqdm(total=cfg.chains * cfg.sweeps, desc="sweeps" if cfg.until_rhat else "chains",
+                  unit="sweep", unit_scale=False, disable=not progress) as bar:
+            while True:
+                for r in executor.map(run_task, tasks):
+                    done[r["chain"]].append(r)
+                    bar.update(len(r["logliks"]))
+                n_done = int(done[0][-1]["sweep"])
+                if not cfg.until_rhat:
+                    break
+                samples = [np.concatenate([r["positions"] for r in rs]) for rs in done]
+                status = convergence(kept_draws(samples, warmup), names, cfg.until_rhat, cfg.min_ess)
+                bar.set_postfix_str(status["summary"], refresh=False)
+                if status["converged"] or n_done >= budget:
+                    break
+                more = min(max(MIN_BLOCK_SWEEPS, n_done // 2), budget - n_done)
+                bar.total += cfg.chains * more
+                bar.refresh()
+                tasks = [next_task(tasks[c], done[c][-1], more) for c in range(cfg.chains)]
     finally:
         if own:
             executor.shutdown()
-    results.sort(key=lambda r: r["chain"])
-    proposals = {k: np.stack([r[k] for r in results]) for k in PROPOSAL_FIELDS}
+    merged = [_merge(rs) for rs in done]
+    proposals = {k: np.stack([r[k] for r in merged]) for k in PROPOSAL_FIELDS}
     wall = time.perf_counter() - t0
+    info = dict(chosen.info) if chosen is not None else {"starts": "prior"}
+    move_names = (["independence"] if independence is not None else []) + [m.name for m in moves]
+    adapted = {"narrow": [_plain_widths(r["proposal_state"].narrow) for r in merged],
+               "moves": [{m.name: float(m.width) for m in r["moves"] if hasattr(m, "width")} for r in merged]}
     return InferenceResult(
-        scenario=scenario.name, names=names, samples=np.stack([r["positions"] for r in results]),
-        logliks=np.stack([r["logliks"] for r in results]), starts=starts, proposals=proposals, config=cfg,
-        settings=settings, timing_s={"wall": wall, "chains_cpu": float(sum(r["seconds"] for r in results)),
+        scenario=scenario.name, names=names, samples=np.stack([r["positions"] for r in merged]),
+        logliks=np.stack([r["logliks"] for r in merged]), starts=starts, proposals=proposals, config=cfg,
+        settings=settings, timing_s={"wall": wall, "chains_cpu": float(sum(r["seconds"] for r in merged)),
                                      "workers": workers},
-        steps=int(sum(r["steps"] for r in results)), scene=prepared,
-        init=chosen.info if chosen is not None else {"starts": "prior"})
+        steps=int(sum(r["steps"] for r in merged)), scene=prepared, init=info, warmup=warmup,
+        moves={"set": cfg.moves, "joint": move_names, "codes": _move_codes(independence, moves),
+               "adapted": adapted if warmup else None})
+
+
+MIN_BLOCK_SWEEPS = 25
+
+
+def _merge(results: list[dict]) -> dict:
+    """One chain's block records joined into one (the last block's state)."""
+    out = dict(results[-1])
+    for k in ("positions", "logliks", *PROPOSAL_FIELDS):
+        out[k] = np.concatenate([r[k] for r in results])
+    out["steps"] = sum(r["steps"] for r in results)
+    out["seconds"] = sum(r["seconds"] for r in results)
+    return out
+
+
+def _plain_widths(w):
+    return [float(x) for x in w] if isinstance(w, (tuple, list, np.ndarray)) else float(w)
+
+
+def _move_codes(independence, moves) -> dict:
+    """The proposal record's site code of each joint move (see `galileo.mcmc.sweep`)."""
+    from .mcmc import move_code
+
+    codes = {"independence": -1} if independence is not None else {}
+    codes.update({m.name: move_code(k) for k, m in enumerate(moves)})
+    return codes
 
 
 @dataclass

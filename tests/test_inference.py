@@ -321,8 +321,9 @@ def test_same_seed_same_result_for_one_and_two_workers(demo):
     assert np.array_equal(one.starts, two.starts)
     assert one.proposals.keys() == two.proposals.keys()
     for k in one.proposals:
-        assert np.array_equal(one.proposals[k], two.proposals[k]), k
-    assert one.steps == two.steps
+        assert np.array_equal(one.proposals[k], two.proposals[k], equal_nan=k == "width"), k
+    # (physics steps may differ: each process keeps its own cache of phase-A prefixes, which
+    # saves work without changing a single decision)
     # and another seed gives other chains
     other = infer(scene, tracks, InferenceConfig(chains=2, sweeps=1, seed=6, workers=1), progress=False)
     assert not np.array_equal(other.starts, one.starts)
@@ -345,13 +346,15 @@ def test_save_writes_documented_result_and_npz(small_result: InferenceResult, tm
     kept = res.samples[:, 3:]  # second half of 6 sweeps
     for j, n in enumerate(LATENT_NAMES):
         p = d["posterior"][n]
-        assert set(p) == {"mean", "sd", "q05", "q50", "q95"}
+        assert set(p) == {"mean", "sd", "q05", "q25", "q50", "q75", "q95"}
         assert p["q05"] <= p["q50"] <= p["q95"]
         assert p["mean"] == pytest.approx(kept[..., j].mean())
         assert p["q50"] == pytest.approx(np.median(kept[..., j]))
     diag = d["diagnostics"]
-    for k in ("r_hat", "ess", "acceptance"):
+    for k in ("r_hat", "ess", "ess_tail"):
         assert set(diag[k]) == set(LATENT_NAMES), k
+    assert set(diag["acceptance"]) == set(LATENT_NAMES) | {
+        "k1_from_acceleration_move", "mass_product_move", "mass_ratio_move"}
     for j, n in enumerate(LATENT_NAMES):
         sel = res.proposals["site"] == j
         assert diag["acceptance"][n] == pytest.approx(res.proposals["accepted"][sel].mean())
@@ -378,7 +381,8 @@ def test_saved_run_equals_live_run(small_result: InferenceResult, tmp_path):
     for k, v in res.proposals.items():
         assert rec[f"proposal_{k}"].dtype == v.dtype
         assert np.array_equal(rec[f"proposal_{k}"], v, equal_nan=v.dtype.kind == "f"), k
-    assert res.samples.shape == (2, 6, 4) and res.proposals["accepted"].shape == (2, 24)
+    # one proposal per latent per sweep, then one per joint move (the ramp's three)
+    assert res.samples.shape == (2, 6, 4) and res.proposals["accepted"].shape == (2, 6 * (4 + 3))
 
 
 def test_load_samples_rejects_garbage(tmp_path):

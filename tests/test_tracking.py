@@ -178,11 +178,15 @@ def test_odd_sized_video(demo_dir, tmp_path, capsys):
     _bad(odd, demo_dir / "scene.json", tmp_path, capsys, "odd dimensions 33x25")
 
 
-def test_nothing_moving(demo_dir, tmp_path, capsys):
+def test_nothing_moving_is_evidence_not_an_error(demo_dir, tmp_path):
+    """The demo's first frame held for 20 frames: the objects at rest where the scene file
+    puts them, with a note (tests/test_still_video.py covers it through inference)."""
     frames, _ = read_video(demo_dir / "video.mp4")
     still = tmp_path / "still.mp4"
     write_video(still, [frames[0]] * 20, 30.0)
-    _bad(still, demo_dir / "scene.json", tmp_path, capsys, "nothing moves")
+    tracks = track(still, Scene.load(demo_dir / "scene.json"), progress=False)
+    assert len(tracks.notes) == 1 and tracks.notes[0].startswith("nothing moves")
+    assert all(o.visible.all() and (o.velocity_mps == 0).all() for o in tracks.objects)
 
 
 def test_scene_without_camera(demo_dir, tmp_path, capsys):
@@ -199,19 +203,21 @@ def test_small_preset_accuracy(tmp_path):
     """Issue targets on the rendered small preset: median position error <= 5 mm and velocity
     RMSE <= 0.05 m/s over frames in which objects move, identities kept through every
     collision, shape type right for >= 80% of ramp objects. Videos in which nothing moves
-    must be refused with a clear error."""
+    are reported at rest, with a note."""
     from galileo.scenarios.ramp.dataset import build
     from galileo.scenarios.ramp.track_eval import aggregate, evaluate_folder
 
     entries = build("small", tmp_path, seed=0, progress=False)
-    scores, refused = [], 0
+    scores, still = [], 0
     for e in entries:
         truth = json.loads((tmp_path / e["name"] / "truth.json").read_text())
         moved = np.ptp(np.array(truth["trajectory"]["objects"][0]["position_m"]), axis=0).max() > 0.005
         if not moved:
-            with pytest.raises(GalileoError, match="nothing moves"):
-                evaluate_folder(tmp_path / e["name"])
-            refused += 1
+            tracks = track(tmp_path / e["name"] / "video.mp4", Scene.load(tmp_path / e["name"] / "scene.json"),
+                           progress=False)
+            assert tracks.notes and tracks.notes[0].startswith("nothing moves")
+            assert all((o.velocity_mps == 0).all() for o in tracks.objects)
+            still += 1
             continue
         scores.append(evaluate_folder(tmp_path / e["name"]))
     agg = aggregate(scores)

@@ -95,8 +95,9 @@ def split(examples: list[Example], fold: int, k: int = 5, seed: int = 0) -> tupl
 # -- tracks, patches ---------------------------------------------------------------------------------
 
 def tracks_for(ex: Example, scene=None) -> Tracks | None:
-    """The video's tracks (cached as tracks.json in its folder), or None when nothing moves
-    in it (other tracking errors are raised)."""
+    """The video's tracks (cached as tracks.json in its folder), or None when the scenario's
+    tracker refuses a video in which nothing moves (`StillVideo`: the splash tracker; the
+    ramp's reports the objects at rest, with a note). Other tracking errors are raised."""
     cached = ex.folder / TRACKS_FILE
     if cached.is_file():
         return Tracks.load(cached)
@@ -227,6 +228,8 @@ def make_labels(folder: str | Path, config=None, progress: bool = True, executor
                 lab = scenario.recognition_label(res.scene, tracks, res.map).get(ex.role, {})
                 done[ex.name] = {"mass_kg": lab.get("mass_kg"), "friction": lab.get("friction"),
                                  "map": res.map, "map_loglik": res.map_loglik, "seconds": res.timing_s["wall"]}
+                if tracks.notes:   # e.g. nothing moves: the label says only what the stillness identifies
+                    done[ex.name]["note"] = " ".join(tracks.notes)
             write_json(path, {"scenario": name, "config": _cfg_json(cfg), "videos": done})
     finally:
         if own and todo:

@@ -44,6 +44,11 @@ class RampScenario(Scenario):
 
         return VelocityLikelihood(prepared_scene, tracks, noise, speedups)
 
+    def moves(self, prepared_scene, tracks, latents, bounds):
+        from .moves import ramp_moves
+
+        return ramp_moves(prepared_scene, tracks, [lat.name for lat in latents], bounds)
+
     def drawing(self, scene) -> Drawing:
         import trimesh
 

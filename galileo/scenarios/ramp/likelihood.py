@@ -9,6 +9,24 @@ variance is 0.0025 m^2/s^2). The simulation runs as many frames as the video; fr
 where an object was not seen are left out. Shapes and the ramp object's offset are fixed
 from tracking (section 3.1).
 
+Model mismatch (the scene's priors; defaults: the above). `observation = "student_t"`
+replaces each component's normal by a Student-t of `student_t_dof` (nu) degrees of freedom
+and scale sigma:
+
+    log t(r; nu, sigma) = log G((nu+1)/2) - log G(nu/2) - 1/2 log(nu pi) - log sigma
+                          - (nu+1)/2 log(1 + r^2 / (nu sigma^2)),    r = v_obs - v_sim.
+
+`infer_sigma` makes sigma a latent (log10_sigma_mps, the last one; the fixed `sigma_mps` is
+then unused); `infer_restitution` adds e_collision (the collision's restitution, see
+`Scene.collision_restitution`), which only phase B (below) uses: phase A runs with the
+scene's own restitutions (the slide's combined restitutions are the same either way), so
+the world at the switch still depends on k1 alone. Either model's value is the normaliser
+(n components times the t's first line, or times -log sigma - 1/2 log(2 pi) for the
+normal: it depends on sigma alone) plus a sum of per-frame terms, each <= 0, that depend
+on sigma only through a factor applied to sigma-free per-frame residuals (gaussian: the
+frame's sum of squared residuals r^2, times -1/(2 sigma^2); student_t: the frame's r^2 per
+component, each through log1p(r^2 / (nu sigma^2)), times -(nu+1)/2).
+
 The model treats a world at rest as staying at rest: once, for two consecutive frames,
 every object moves slower than REST_MPS (1 mm/s, sigma / 50), turns slower than REST_RADPS
 (0.02 rad/s: 1 mm/s at 5 cm from the centre) and is not speeding up (by more than
@@ -42,14 +60,26 @@ proposal's.
 Exact speed-ups (`speedups=True`; each gives the same accept/reject decisions as the
 plain path, `speedups=False`, which simulates every frame of every proposal):
 
-* early rejection: every frame adds a term <= 0, so the partial sum is an upper bound of
-  the final value; the simulation stops once it falls below the MH threshold.
+* early rejection: every frame adds a term <= 0 (either model), so the normaliser plus the
+  partial sum is an upper bound of the final value; the simulation stops once it falls
+  below the MH threshold.
 * at-rest cut-off: once the world is at rest, the remaining frames are known without
-  stepping.
-* prefix reuse: a proposal with the k1 of a recent one (every proposal of m1, m2 and k2)
-  resumes from the snapshot at the switch, with the per-frame terms up to there already
-  summed. Without a switch (no target, or the object stops short of it) the whole result
-  depends only on k1 and is reused whole.
+  stepping: their terms at zero simulated velocity, summed from the observations for the
+  proposal's sigma (gaussian: -1/(2 sigma^2) times a sigma-free sum; student_t: computed
+  once per sigma).
+* prefix reuse: a proposal with the k1 of a recent one (every proposal of m1, m2, k2,
+  e_collision and sigma) resumes from the snapshot at the switch, with the sigma-free
+  residuals of the frames up to there kept and turned into terms for the proposal's sigma
+  exactly as the plain path does at its switch. Without a switch (no target, or the object
+  stops short of it) the whole result depends only on k1 (and sigma): its residuals are
+  reused whole.
+* result reuse (with the sigma latent): a proposal whose latents other than sigma are
+  those of a recent full evaluation (every proposal of sigma) takes its residuals and
+  needs no physics at all; the terms are summed in the plain path's order.
+
+Both paths evaluate the terms and sums by the same code in the same order (the frames
+before the switch summed by numpy, those after one by one), so they give the same value
+bit for bit.
 """
 from __future__ import annotations
 
@@ -70,6 +100,7 @@ REST_MPS = 1e-3        # linear speed below which an object counts as at rest (m
 REST_RADPS = 0.02      # and angular speed (rad/s)
 REST_CREEP_MPS = 5e-5  # ... as long as its speed grew by no more than this since the frame before
 SIGMA_MPS = 0.05
+SIGMA_LATENT = "log10_sigma_mps"   # the sigma latent (`Priors.infer_sigma`): sigma = 10 ** it
 UNIT_MASS_KG = 1.0   # the masses phase A runs with (see VelocityLikelihood._evaluate)
 PHASE_A_TARGET_FRICTION = 1.0   # and the target's friction (it rests on the ground until hit)
 SWITCH_MARGIN_M = 0.01          # phase A ends this much before one frame's reach
@@ -96,11 +127,31 @@ def scene_for_inference(scene: Scene, tracks: Tracks) -> Scene:
 
 @dataclass
 class _Prefix:
-    first_b: int | None                # first frame of phase B (None: no switch, `full` holds the result)
+    first_b: int | None                # first frame of phase B (None: no switch, the whole result by k1)
     snapshot: tuple | None = None      # the objects' poses and velocities where phase A ended:
     substeps: int = 0                  # ... this many physics steps after frame first_b - 1
-    terms: np.ndarray | None = None    # per-frame log-likelihood terms of frames < first_b
-    full: float | None = None          # without a switch: the whole sum of terms
+    terms: list | None = None          # sigma-free per-frame residuals (`_residual`) of frames < first_b;
+                                       # without a switch: of every frame scored
+    rest: int | None = None            # without a switch: the frame the rest rule held still from
+    full: tuple | None = None          # without a switch: (noise key, value) of the last sum
+
+
+@dataclass
+class _Result:
+    """A full evaluation's sigma-free record (result reuse, with the sigma latent)."""
+    first_b: int | None                # as in _Prefix (None: no switch)
+    terms: list                        # residuals of every frame scored
+    rest: int | None                   # the frame the rest rule held still from (None: none)
+
+
+class _Noise:
+    """What the terms need of one sigma: the normaliser, the factor on the residuals and
+    (computed when first needed) the rest rule's sums."""
+    __slots__ = ("sigma", "log_norm", "scale", "rest")
+
+    def __init__(self, sigma: float, log_norm: float, scale: float):
+        self.sigma, self.log_norm, self.scale = sigma, log_norm, scale
+        self.rest: list | None = None
 
 
 class VelocityLikelihood:
@@ -112,8 +163,12 @@ class VelocityLikelihood:
         self.names = self.scene.latent_names
         self.fps = tracks.fps
         self.n_frames = tracks.n_frames
-        self.sigma_mps = float(sigma_mps)
+        self.sigma_mps = float(sigma_mps)   # the fixed sigma (unused with the sigma latent)
         self.speedups = speedups
+        priors = self.scene.priors
+        self.observation = priors.observation
+        self.dof = priors.student_t_dof
+        self.infer_sigma = SIGMA_LATENT in self.names
         order = [next(t for t in tracks.objects if t.role == o.role) for o in self.scene.objects]
         self.v_obs = np.stack([np.nan_to_num(t.velocity_mps[:, [0, 2]]) for t in order])   # (O, F, 2)
         self.seen = np.stack([t.visible for t in order]).astype(float)                     # (O, F)
@@ -121,12 +176,21 @@ class VelocityLikelihood:
         # term is a handful of multiplications: numpy's call overhead would dominate it)
         self._obs = [[(i, float(self.v_obs[i, f, 0]), float(self.v_obs[i, f, 1]))
                       for i in range(len(order)) if self.seen[i, f]] for f in range(self.n_frames)]
-        self._half_prec = -0.5 / self.sigma_mps ** 2
-        # the rest rule's sums of the terms of frames f.. at zero velocity, f = 0..F
-        d2 = (self.v_obs ** 2).sum(axis=2) * self.seen
-        self._rest_terms = [float(self._half_prec * d2[:, f:].sum()) for f in range(self.n_frames + 1)]
-        n_terms = 2 * self.seen.sum()
-        self.log_norm = -n_terms * math.log(self.sigma_mps * math.sqrt(2 * math.pi))
+        self.n_terms = 2 * self.seen.sum()
+        if self.observation == "student_t":
+            nu = self.dof
+            self._t_coef = -0.5 * (nu + 1.0)
+            self._t_const = math.lgamma(0.5 * (nu + 1.0)) - math.lgamma(0.5 * nu) - 0.5 * math.log(nu * math.pi)
+            self._residual, self._term = self._residual_t, self._term_t
+        else:
+            # the rest rule's sigma-free sums: squared observed speeds of frames f.., f = 0..F
+            d2 = (self.v_obs ** 2).sum(axis=2) * self.seen
+            self._rest_d2 = [float(d2[:, f:].sum()) for f in range(self.n_frames + 1)]
+            self._residual, self._term = self._residual_g, self._term_g
+        self._noises: OrderedDict[float, _Noise] = OrderedDict()   # log10 sigma -> _Noise (sigma latent)
+        self._fixed = self._make_noise(self.sigma_mps)
+        self.log_norm = self._fixed.log_norm    # the normaliser at the fixed sigma
+        self._sigma_at = self.names.index(SIGMA_LATENT) if self.infer_sigma else None
         self.sim = Simulator(self.scene)
         self.spf = int(round(self.scene.sim_hz / self.fps))
         # each object's farthest surface point from its centre (a bound for `_reach_m`)
@@ -134,33 +198,103 @@ class VelocityLikelihood:
         self._target_alone = self._simulate_target_alone() if len(self.scene.objects) == 2 else None
         self._prefixes: OrderedDict[tuple, _Prefix] = OrderedDict()
         self._cache_size = cache_size
+        # result reuse: only a sigma proposal repeats the physics of a recent evaluation
+        self._results: OrderedDict[tuple, _Result] | None = OrderedDict() if self.infer_sigma else None
+        self._physical = tuple(n for n in self.names if n != SIGMA_LATENT)
         self.steps = 0          # physics steps taken (for benchmarks)
 
     # -- pieces --------------------------------------------------------------------------
     def values_of(self, position) -> dict[str, float]:
         return {n: float(v) for n, v in zip(self.names, position)}
 
-    def _frame_term(self, f: int, vel) -> float:
-        """log N(v_obs | v_sim) of frame f, without the normaliser (vel: per object (vx, vy, vz))."""
+    def _make_noise(self, sigma: float) -> _Noise:
+        if self.observation == "student_t":
+            return _Noise(sigma, self.n_terms * (self._t_const - math.log(sigma)), 1.0 / (self.dof * sigma * sigma))
+        return _Noise(sigma, -self.n_terms * math.log(sigma * math.sqrt(2 * math.pi)), -0.5 / sigma ** 2)
+
+    def noise_of(self, values: dict) -> _Noise:
+        """The noise the values imply: the fixed sigma, or 10 ** log10_sigma_mps."""
+        if not self.infer_sigma:
+            return self._fixed
+        key = values[SIGMA_LATENT]
+        noise = self._noises.get(key)
+        if noise is None:
+            noise = self._noises[key] = self._make_noise(10.0 ** key)
+            while len(self._noises) > 8:
+                self._noises.popitem(last=False)
+        return noise
+
+    def sigma_of(self, position) -> float:
+        """The sigma (m/s) the likelihood uses at this latent vector."""
+        return self.noise_of(self.values_of(position)).sigma
+
+    def _residual_g(self, f: int, vel) -> float:
+        """Gaussian: frame f's sum of squared residuals (vel: per object (vx, vy, vz))."""
         acc = 0.0
         for i, ox, oz in self._obs[f]:
             v = vel[i]
             dx, dz = ox - v[0], oz - v[2]
             acc += dx * dx + dz * dz
-        return acc * self._half_prec
+        return acc
 
-    def _rest_term(self, f0: int) -> float:
+    def _term_g(self, r: float, noise: _Noise) -> float:
+        """log N of a frame without the normaliser: -r / (2 sigma^2)."""
+        return r * noise.scale
+
+    def _residual_t(self, f: int, vel) -> tuple:
+        """Student-t: frame f's squared residuals, one per component seen."""
+        out = []
+        for i, ox, oz in self._obs[f]:
+            v = vel[i]
+            dx, dz = ox - v[0], oz - v[2]
+            out.append(dx * dx)
+            out.append(dz * dz)
+        return tuple(out)
+
+    def _term_t(self, r: tuple, noise: _Noise) -> float:
+        """log t of a frame without the normaliser: -(nu+1)/2 sum log1p(r^2 / (nu sigma^2))."""
+        acc = 0.0
+        inv = noise.scale
+        for r2 in r:
+            acc += math.log1p(r2 * inv)
+        return acc * self._t_coef
+
+    def _rest_term(self, f0: int, noise: _Noise) -> float:
         """Sum of the terms of frames f0.. with zero simulated velocity."""
-        return self._rest_terms[f0]
+        if self.observation != "student_t":
+            return noise.scale * self._rest_d2[f0]
+        if noise.rest is None:
+            per_frame = (np.log1p(self.v_obs ** 2 * noise.scale).sum(axis=2) * self.seen).sum(axis=0) * self._t_coef
+            noise.rest = np.concatenate([np.cumsum(per_frame[::-1])[::-1], [0.0]]).tolist()
+        return noise.rest[f0]
+
+    def _prefix_sum(self, terms: list, first_b: int, noise: _Noise) -> float:
+        """The terms of frames < first_b summed (numpy's order: both paths do this at the switch)."""
+        term = self._term
+        return float(np.array([term(r, noise) for r in terms[:first_b]]).sum())
+
+    def _replay(self, first_b: int | None, terms: list, rest: int | None, noise: _Noise) -> float:
+        """A full evaluation's sum from its residuals, in the order `_evaluate` sums it."""
+        term = self._term
+        start = first_b or 0
+        total = self._prefix_sum(terms, first_b, noise) if first_b else 0.0
+        for f in range(start, len(terms)):
+            total += term(terms[f], noise)
+        if rest is not None:
+            total += self._rest_term(rest, noise)
+        return total
 
     def _phase_a_values(self, values: dict) -> dict:
-        """The proposal's values as phase A uses them: unit masses, the target's friction fixed."""
-        out = dict(values)
-        for k in values:
+        """The proposal's values as phase A uses them: unit masses, the target's friction
+        fixed, no collision restitution or sigma (the scene's restitutions)."""
+        out = {}
+        for k, v in values.items():
             if k.endswith("_kg"):
                 out[k] = UNIT_MASS_KG
             elif k.startswith("k") and k != "k1":
                 out[k] = PHASE_A_TARGET_FRICTION
+            elif k not in ("e_collision", SIGMA_LATENT):
+                out[k] = v
         return out
 
     # -- the target --------------------------------------------------------------------------
@@ -168,11 +302,13 @@ class VelocityLikelihood:
         """(log-likelihood, stopped_early). With a threshold and speed-ups, may stop early and
         return an upper bound below the threshold."""
         values = self.values_of(position)
+        noise = self.noise_of(values)
         limit = -math.inf if (threshold is None or not self.speedups) else threshold
-        total, early, _ = self._evaluate(values, limit)
-        return self.log_norm + total, early
+        total, early, _ = self._evaluate(values, limit, noise=noise)
+        return noise.log_norm + total, early
 
-    def _evaluate(self, values: dict, limit: float, record: bool = False, reuse: bool = True):
+    def _evaluate(self, values: dict, limit: float, record: bool = False, reuse: bool = True,
+                  noise: _Noise | None = None):
         """Sum of the per-frame terms; (sum or partial sum, stopped early, record): with
         `record`, per-frame (positions, velocities, orientations), NaN in frames a reused
         prefix skipped (`reuse=False` simulates from frame 0 instead).
@@ -184,50 +320,74 @@ class VelocityLikelihood:
         frame s + 1. Both paths do exactly this, so the world at frame s depends only on k1
         and its snapshot serves every proposal with the same k1.
         """
+        noise = noise or self.noise_of(values)
         fast = self.speedups
-        key = (values["k1"],)  # all that phase A depends on
-        prefix = self._prefixes.get(key) if fast and reuse else None
+        reusing = fast and reuse
         n = self.n_frames
+        if reusing and self._results is not None and not record:
+            hit = self._results.get(tuple(values[k] for k in self._physical))
+            if hit is not None:   # only sigma differs from a recent evaluation: no physics
+                self._results.move_to_end(tuple(values[k] for k in self._physical))
+                return self._replay(hit.first_b, hit.terms, hit.rest, noise), False, None
+        key = (values["k1"],)  # all that phase A depends on
+        prefix = self._prefixes.get(key) if reusing else None
         n_obj = len(self.scene.objects)
         rec = (np.full((n_obj, n, 3), np.nan), np.full((n_obj, n, 3), np.nan),
                np.full((n_obj, n, 4), np.nan)) if record else None
         sim = self.sim
         if prefix is not None:
             self._prefixes.move_to_end(key)
-            if prefix.full is not None and not record:
-                return prefix.full, False, None
+            if prefix.first_b is None and not record:
+                if prefix.full is None or prefix.full[0] is not noise:
+                    prefix.full = (noise, self._replay(None, prefix.terms, prefix.rest, noise))
+                return prefix.full[1], False, None
             if prefix.snapshot is not None:
-                total = float(prefix.terms.sum())
-                if self.log_norm + total < limit:   # the kernel's own test: value < threshold
+                total = self._prefix_sum(prefix.terms, prefix.first_b, noise)
+                if noise.log_norm + total < limit:   # the kernel's own test: value < threshold
                     return total, True, None
-                return self._phase_b(values, prefix.first_b, prefix.substeps, prefix.snapshot, total, limit, rec)
+                residuals = None if self._results is None else list(prefix.terms) + [None] * (n - prefix.first_b)
+                return self._phase_b(values, prefix.first_b, prefix.substeps, prefix.snapshot, total, limit, rec,
+                                     noise, residuals)
         w = sim.reset(self._phase_a_values(values))
         two = n_obj == 2
         if two:  # the target takes no part in phase A's simulation: its motion alone is known
             pb.setCollisionFilterGroupMask(w.bodies[1], -1, 0, 0, physicsClientId=w.cid)
-        terms = np.zeros(n)
-        status, f, total = self._frames(w, 0, 0.0, limit, terms, rec, phase_a=two)
+        residuals = [None] * n
+        status, f, total = self._frames(w, 0, 0.0, limit, residuals, rec, noise, phase_a=two)
         if status == "early":
             return total, True, rec
         if status != "switch":
             if fast:
-                self._remember(key, _Prefix(None, full=total))
+                end = f if status == "rest" else n
+                rest = f if status == "rest" else None
+                self._remember(key, _Prefix(None, terms=residuals[:end], rest=rest, full=(noise, total)))
             return total, False, rec
         first_b = f + 1
-        total = float(terms[:first_b].sum())
+        total = self._prefix_sum(residuals, first_b, noise)
         substeps = self._refine_switch(w, f)
         pose, twist = self._target_alone[f * self.spf + substeps]
         snapshot = (sim.snapshot()[0], pose + twist)
         if fast:
-            self._remember(key, _Prefix(first_b, snapshot, substeps, terms[:first_b].copy()))
-        return self._phase_b(values, first_b, substeps, snapshot, total, limit, rec)
+            self._remember(key, _Prefix(first_b, snapshot, substeps, residuals[:first_b]))
+        return self._phase_b(values, first_b, substeps, snapshot, total, limit, rec, noise, residuals)
 
-    def _phase_b(self, values: dict, first: int, substeps: int, snapshot: tuple, total: float, limit: float, rec):
+    def _phase_b(self, values: dict, first: int, substeps: int, snapshot: tuple, total: float, limit: float, rec,
+                 noise: _Noise, residuals: list):
         """From frame `first` on, with the proposal's values, the world resumed from the
         snapshot taken `substeps` physics steps after frame first - 1."""
         w = self.sim.resume(snapshot, values)
-        status, _, total = self._frames(w, first, total, limit, None, rec, phase_a=False, substeps_done=substeps)
+        status, f, total = self._frames(w, first, total, limit, residuals, rec, noise, phase_a=False,
+                                        substeps_done=substeps)
+        if status != "early" and self.speedups and residuals is not None:
+            end = f if status == "rest" else self.n_frames
+            self._keep_result(values, first, residuals[:end], f if status == "rest" else None)
         return total, status == "early", rec
+
+    def _keep_result(self, values: dict, first_b: int | None, terms: list, rest: int | None) -> None:
+        if self._results is not None and self._cache_size > 0:
+            self._results[tuple(values[k] for k in self._physical)] = _Result(first_b, terms, rest)
+            while len(self._results) > 4 * self._cache_size:
+                self._results.popitem(last=False)
 
     def _reach_m(self, twists, dt: float) -> float:
         """How far the objects could close in on each other within dt: each point moves at
@@ -282,15 +442,16 @@ class VelocityLikelihood:
         sim.drop_contacts()  # the filters back to normal
         return out
 
-    def _frames(self, w, first: int, total: float, limit: float, terms: np.ndarray | None, rec, phase_a: bool,
-                substeps_done: int = 0):
+    def _frames(self, w, first: int, total: float, limit: float, residuals: list | None, rec, noise: _Noise,
+                phase_a: bool, substeps_done: int = 0):
         """Step through frames first.. (stepping into `first` unless it is 0), adding terms.
 
         Returns (status, frame, total): "done", "early" (normaliser + partial sum below the
         limit, the MH threshold),
         "rest" (the world came to rest; the rest of the frames added at zero velocity) or,
         in phase A, "switch" (the objects came within one frame's reach of each other at
-        `frame`; its term is added). Per-frame terms go into `terms` unless it is None.
+        `frame`; its term is added). Per-frame sigma-free residuals go into `residuals`
+        unless it is None; the terms are those of `noise`.
         In phase A only the ramp object is simulated; the target's pose and velocities come
         from `_target_alone` (it is moved there before the distance test, its own simulated
         state unused). `substeps_done`: physics steps already taken into frame `first`."""
@@ -302,6 +463,8 @@ class VelocityLikelihood:
         step, get_vel = pb.stepSimulation, pb.getBaseVelocity
         target_alone = self._target_alone
         frame_dt = 1.0 / self.fps
+        residual, term_of = self._residual, self._term
+        log_norm = noise.log_norm
         for f in range(first, n):
             if f:
                 todo = spf - substeps_done if f == first else spf
@@ -336,12 +499,12 @@ class VelocityLikelihood:
                     for _ in range(spf * (n - 1 - f)):
                         step(physicsClientId=cid)
                     self.steps += spf * (n - 1 - f)
-                return "rest", f, total + self._rest_term(f)
-            term = self._frame_term(f, vel)
-            if terms is not None:
-                terms[f] = term
-            total += term
-            if self.log_norm + total < limit:   # the kernel's own test: value < threshold
+                return "rest", f, total + self._rest_term(f, noise)
+            r = residual(f, vel)
+            if residuals is not None:
+                residuals[f] = r
+            total += term_of(r, noise)
+            if log_norm + total < limit:   # the kernel's own test: value < threshold
                 return "early", f, total
             if phase_a and f < n - 1 and self._within(w, twists, f * spf, frame_dt):
                 return "switch", f, total

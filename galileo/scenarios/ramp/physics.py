@@ -8,7 +8,11 @@ restore and the steps, never a rebuild.
 Friction semantics: Bullet combines the two bodies' coefficients by multiplying them.
 The ramp and the ground have friction 1, so an object's `friction` is exactly its
 Coulomb coefficient against the ramp and the ground. Between two objects the
-coefficient is the product k1 * k2 (and the restitution the product e1 * e2).
+coefficient is the product k1 * k2 (and the restitution the product e1 * e2). With a
+collision restitution (`Scene.collision_restitution` or the value e_collision) the
+restitutions are set so that the collision's is exactly that while the ramp object's
+against the ramp and the ground stays e1: ramp object 1, target e_collision, ramp and
+ground e1 (the target's against the ground is then e1 * e_collision).
 Linear and angular damping are 0 (Bullet's default 0.04 would slow a sliding block by
 about 2% against Newton); rolling and spinning friction are 0 but for cylinders (see
 `galileo.shapes.CYLINDER_ROLLING_FRICTION`); sleeping is disabled and a reset drops the previous run's
@@ -71,6 +75,8 @@ class _World:
             self.bodies.append(b)
             self.inertia_per_kg.append(obj.shape.inertia_per_kg())
         self.state = pb.saveState(physicsClientId=cid)
+        # the ramp's and the ground's restitution now (restoreState leaves restitutions alone)
+        self.static_restitution = 1.0
 
 
 class Simulator:
@@ -134,17 +140,28 @@ class Simulator:
 
     def apply_values(self, values: dict[str, float] | None = None) -> None:
         """Set masses (with inertia), frictions, restitutions and the ramp object's start
-        offset from the scene, overridden by `values` (m1_kg, k1, e1, offset_units, ...)."""
+        offset from the scene, overridden by `values` (m1_kg, k1, e1, e_collision,
+        offset_units, ...; other names, e.g. log10_sigma_mps, are ignored)."""
         w = self._world or self.world
         cid = w.cid
         scene = self.scene
         values = values or {}
+        restitution = [values.get("e" + str(i + 1), obj.restitution) for i, obj in enumerate(scene.objects)]
+        static = 1.0
+        collision = values.get("e_collision", scene.collision_restitution)
+        if collision is not None and len(w.bodies) == 2:
+            # products: object-ramp = object-ground = e1, object-target = e_collision
+            static, restitution = float(restitution[0]), [1.0, float(collision)]
+        if w.static_restitution != static:
+            for b in (w.ground, w.ramp):
+                pb.changeDynamics(b, -1, restitution=static, physicsClientId=cid)
+            w.static_restitution = static
         for i, (obj, b) in enumerate(zip(scene.objects, w.bodies)):
             n = str(i + 1)
             mass = values.get("m" + n + "_kg", obj.mass_kg)
             pb.changeDynamics(b, -1, mass=mass, localInertiaDiagonal=(mass * w.inertia_per_kg[i]).tolist(),
                               lateralFriction=values.get("k" + n, obj.friction),
-                              restitution=values.get("e" + n, obj.restitution), physicsClientId=cid)
+                              restitution=restitution[i], physicsClientId=cid)
 
     def place(self, values: dict[str, float] | None = None) -> None:
         """Put the ramp object at its start (the scene's offset or values["offset_units"])."""

@@ -2,7 +2,9 @@
 ramp of another angle; where does the target end up.
 
 Each answer comes from simulating the MAP estimate, with the share of posterior samples
-(second half of every chain) that agree, so the user sees how sure the model is.
+(the kept draws of every chain) that agree, so the user sees how sure the model is. Every
+answer carries the result's `posterior_converged` flag: a share from chains that disagree
+is not a probability to trust.
 """
 from __future__ import annotations
 
@@ -47,10 +49,14 @@ class Prediction:
             raise GalileoError(f"{result_path} is not a galileo result file: missing {e}") from None
         self.names = tuple(d.get("latents", list(self.map)))
         self.samples = np.zeros((0, len(self.names)))
+        diag = d.get("diagnostics") if isinstance(d.get("diagnostics"), dict) else {}
+        self.converged = d.get("converged") if isinstance(d.get("converged"), bool) else None
+        self.why_not = list(d.get("why_not") or [])
+        warmup = diag.get("warmup_sweeps", 0) if isinstance(diag.get("warmup_sweeps", 0), int) else 0
         if samples_file is not None and samples_file.exists():
             rec = load_samples(samples_file)
             s = rec["samples"]
-            kept = s[:, burn_in(s.shape[1]):].reshape(-1, s.shape[2])
+            kept = s[:, burn_in(s.shape[1], warmup):].reshape(-1, s.shape[2])
             idx = np.linspace(0, len(kept) - 1, min(max_samples, len(kept))).astype(int)
             self.samples = kept[idx]
 
@@ -65,7 +71,11 @@ class Prediction:
         share = (float(np.mean([slides(scene, self._values(r), sim=sim) for r in self.samples]))
                  if len(self.samples) else None)
         return {"angle_deg": angle_deg, "moves": answer, "posterior_share_moving": share,
-                "k1_map": self.map["k1"], "tan_angle": float(np.tan(np.radians(angle_deg)))}
+                "k1_map": self.map["k1"], "tan_angle": float(np.tan(np.radians(angle_deg))), **self.flag()}
+
+    def flag(self) -> dict:
+        """Whether the shares come from a converged posterior (None: the result predates the flag)."""
+        return {"posterior_converged": self.converged, **({"why_not": self.why_not} if self.converged is False else {})}
 
     def target_outcome(self, scene: Scene | None = None) -> dict:
         """Where the target comes to rest (x of its centre, m), for the inferred scene or `scene`."""
@@ -85,4 +95,5 @@ class Prediction:
         if len(xs):
             out.update({"posterior_q05_x_m": float(np.quantile(xs, 0.05)),
                         "posterior_q95_x_m": float(np.quantile(xs, 0.95))})
+        out.update(self.flag())
         return out

@@ -3,10 +3,12 @@
 * The objects read from a frame: the ramp object (its latents m1_kg, k1) and the target
   (m2_kg, k2).
 * A video's "Galileo label" for the ramp object: its friction is the MAP k1 whenever the
-  object slides; its mass is identified only through a collision (the velocities fix the
-  ratio m1/m2, never the masses themselves), so it is labelled only when the tracked target
-  moved, as the MAP ratio times the target's mass (the targets are the lab's weighed
-  reference objects: the scene file states their mass).
+  object slides (one that holds on the ramp, as in a video in which nothing moves, only
+  bounds it from below by tan of the ramp angle: no friction label); its mass is
+  identified only through a collision (the velocities fix the ratio m1/m2, never the
+  masses themselves), so it is labelled only when the tracked target moved, as the MAP
+  ratio times the target's mass (the targets are the lab's weighed reference objects: the
+  scene file states their mass).
 * The dataset's examples: one per video (the ramp object; the object and its material from
   index.json; ground truth from truth.json).
 """
@@ -21,6 +23,7 @@ from ...jsonio import read_json
 from ...model import Readout
 
 TARGET_MOVED_M = 0.005   # the tracked target moved at least this far: a collision was seen
+RAMP_MOVED_M = 0.005     # the tracked ramp object moved at least this far: it slid
 
 
 def readouts(scene) -> tuple[Readout, ...]:
@@ -30,16 +33,23 @@ def readouts(scene) -> tuple[Readout, ...]:
     return tuple(out)
 
 
-def collision_seen(tracks) -> bool:
-    tr = tracks.by_role("target")
+def _moved(tracks, role: str, threshold_m: float) -> bool | None:
+    """Whether the tracked object of `role` moved further than `threshold_m` from where it
+    was first seen; None when it is seen in fewer than two frames."""
+    tr = tracks.by_role(role)
     if tr is None or tr.visible.sum() < 2:
-        return False
+        return None
     pos = tr.position_m[tr.visible]
-    return bool(np.linalg.norm(pos - pos[0], axis=1).max() > TARGET_MOVED_M)
+    return bool(np.linalg.norm(pos - pos[0], axis=1).max() > threshold_m)
+
+
+def collision_seen(tracks) -> bool:
+    return bool(_moved(tracks, "target", TARGET_MOVED_M))
 
 
 def label(scene, tracks, values: dict) -> dict:
-    ramp = {"mass_kg": None, "friction": float(values["k1"])}
+    held = _moved(tracks, "ramp", RAMP_MOVED_M) is False   # it held on the ramp: k1 >= tan(angle), no more
+    ramp = {"mass_kg": None, "friction": None if held else float(values["k1"])}
     out = {"ramp": ramp}
     if scene.target is not None and "m2_kg" in values:
         hit = collision_seen(tracks)

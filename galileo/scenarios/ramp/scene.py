@@ -39,8 +39,26 @@ LATENT_SPECS = {
     "m2_kg": Latent("m2_kg", bounds=(0.001, 1.0), doc="target's mass", **_MASS),
     "k2": Latent("k2", bounds=(0.0, 1.0), doc="target's friction coefficient (against the ground)", **_FRICTION),
 }
-# names `--set` accepts besides the latents
-SCENE_KNOBS = ("offset_units", "angle_deg", "e1", "e2")
+# Optional model-mismatch latents (off by default; `Priors.infer_restitution`, `Priors.infer_sigma`),
+# after the four above in this order when enabled:
+# * e_collision: the restitution of the ramp object's collision with the target (see
+#   `Scene.collision_restitution` for how Bullet's per-body restitutions are set);
+# * log10_sigma_mps: the likelihood's sigma, log-uniform (uniform in log10), always last.
+OPTIONAL_SPECS = {
+    "e_collision": Latent("e_collision", "1", bounds=(0.0, 1.0), limits=(0.0, 1.0),
+                          doc="restitution of the ramp object's collision with the target"),
+    # narrow 0.1: the posterior's SD in log10 sigma is about 0.43 / sqrt(2 n) for n tracked
+    # velocities (0.03 for 120), and a sigma proposal is cheap (it reuses the physics)
+    "log10_sigma_mps": Latent("log10_sigma_mps", "log10 m/s", bounds=(math.log10(0.005), math.log10(0.5)),
+                              doc="log10 of the likelihood's sigma (SD of each tracked velocity component)",
+                              narrow=0.1),
+}
+ALL_SPECS = {**LATENT_SPECS, **OPTIONAL_SPECS}
+# the observation models of the likelihood (`Priors.observation`)
+OBSERVATIONS = ("gaussian", "student_t")
+DEFAULT_STUDENT_T_DOF = 4.0
+# names `--set` accepts besides the latents (`log10_sigma_mps` is accepted and changes no physics)
+SCENE_KNOBS = ("offset_units", "angle_deg", "e1", "e2", "e_collision", "log10_sigma_mps")
 
 
 # -- priors --------------------------------------------------------------------
@@ -55,24 +73,55 @@ class Priors:
     mass ~ U(0.001, 1) kg, friction ~ U(0, 1), shape type uniform over box / cylinder /
     torus, per-axis size uniform over `size_m`, offset uniform over the integers in
     `offset_units`.
+
+    And the observation model (defaults: the paper's): `observation` "gaussian" or
+    "student_t" (per velocity component, `student_t_dof` degrees of freedom);
+    `infer_sigma` adds the latent log10_sigma_mps (the likelihood's sigma, log-uniform
+    over `bounds["log10_sigma_mps"]`, default 0.005..0.5 m/s; the fixed sigma is then
+    unused); `infer_restitution` adds e_collision (the collision's restitution, U(0, 1)) in
+    a scene with a target. An enabled latent's bounds are always in `bounds`.
     """
     bounds: dict = field(default_factory=lambda: dict(DEFAULT_BOUNDS))
     offset_units: tuple[int, int] = (-5, 5)
     shape_types: tuple[str, ...] = SHAPE_TYPES
     size_m: tuple[float, float] = (0.01, 0.2)
+    observation: str = "gaussian"
+    student_t_dof: float = DEFAULT_STUDENT_T_DOF
+    infer_sigma: bool = False
+    infer_restitution: bool = False
+
+    def __post_init__(self):
+        if self.observation not in OBSERVATIONS:
+            raise SceneError(f"priors.observation: expected one of {', '.join(OBSERVATIONS)}, got {self.observation!r}")
+        dof = self.student_t_dof
+        if isinstance(dof, bool) or not isinstance(dof, (int, float)) or not math.isfinite(dof) or dof <= 0:
+            raise SceneError(f"priors.student_t_dof: expected a finite number > 0, got {dof!r}")
+        for flag in ("infer_sigma", "infer_restitution"):
+            if not isinstance(getattr(self, flag), bool):
+                raise SceneError(f"priors.{flag}: expected true or false, got {getattr(self, flag)!r}")
+        object.__setattr__(self, "student_t_dof", float(dof))
+        enabled = [n for n, on in (("e_collision", self.infer_restitution), ("log10_sigma_mps", self.infer_sigma))
+                   if on and n not in self.bounds]
+        if enabled:   # an enabled latent's default bounds, explicit
+            object.__setattr__(self, "bounds", {**self.bounds, **{n: OPTIONAL_SPECS[n].bounds for n in enabled}})
+
+    def bound(self, name: str) -> tuple[float, float]:
+        """The prior bounds of latent `name` (an optional latent's default if not set)."""
+        b = self.bounds.get(name)
+        return tuple(b) if b is not None else ALL_SPECS[name].bounds
 
     def log_prob(self, latents: dict[str, float]) -> float:
         """Log density of the continuous latents (uniform): a constant inside, -inf outside."""
         lp = 0.0
         for name, value in latents.items():
-            lo, hi = self.bounds[name]
+            lo, hi = self.bound(name)
             if not lo <= value <= hi:
                 return -math.inf
             lp -= math.log(hi - lo)
         return lp
 
     def sample(self, rng: np.random.Generator, names: Iterable[str]) -> dict[str, float]:
-        return {n: float(rng.uniform(*self.bounds[n])) for n in names}
+        return {n: float(rng.uniform(*self.bound(n))) for n in names}
 
     def sample_offset(self, rng: np.random.Generator) -> int:
         return int(rng.integers(self.offset_units[0], self.offset_units[1] + 1))
@@ -85,15 +134,24 @@ class Priors:
     def with_bounds(self, **bounds: tuple[float, float]) -> "Priors":
         new = dict(self.bounds)
         for k, v in bounds.items():
-            if k not in new:
+            if k not in new and k not in OPTIONAL_SPECS:
                 raise KeyError(k)
-            new[k] = check_bounds(LATENT_SPECS[k], *v)
+            new[k] = check_bounds(ALL_SPECS[k], *v)
         return replace(self, bounds=new)
 
     def to_json(self) -> dict:
-        return {**{k: list(v) for k, v in self.bounds.items()},
-                "offset_units": list(self.offset_units), "shape_types": list(self.shape_types),
-                "size_m": list(self.size_m)}
+        d = {**{k: list(v) for k, v in self.bounds.items()},
+             "offset_units": list(self.offset_units), "shape_types": list(self.shape_types),
+             "size_m": list(self.size_m)}
+        # the observation model only where it is not the default (older files stay as they were)
+        if self.observation != "gaussian" or self.student_t_dof != DEFAULT_STUDENT_T_DOF:
+            d["observation"] = self.observation
+            d["student_t_dof"] = self.student_t_dof
+        if self.infer_sigma:
+            d["infer_sigma"] = True
+        if self.infer_restitution:
+            d["infer_restitution"] = True
+        return d
 
 
 # -- scene parts ------------------------------------------------------------------
@@ -165,6 +223,14 @@ class Scene(SceneFile):
     sim_hz: int = 240
     gravity_mps2: float = 9.81
     priors: Priors = field(default_factory=Priors)
+    # The restitution of the ramp object's collision with the target (None: the objects' own,
+    # e1 * e2). When set (or given as the latent e_collision) Bullet's per-body restitutions
+    # become: ramp object 1, target e_collision, ramp and ground e1; so the collision's
+    # combined restitution (Bullet multiplies the two bodies') is e_collision, the ramp
+    # object's against the ramp and the ground stays e1 (the slide, phase A of the
+    # likelihood, is unchanged), and the target's against the ground is e1 * e_collision
+    # (0, as without it, when e1 = 0: the default and the dataset's).
+    collision_restitution: float | None = None
 
     # -- access ---------------------------------------------------------------
     @property
@@ -177,19 +243,29 @@ class Scene(SceneFile):
 
     @property
     def latent_names(self) -> tuple[str, ...]:
-        return tuple(n for n, (i, _) in LATENTS.items() if i < len(self.objects))
+        """m1_kg, k1 (m2_kg, k2 with a target), then the optional latents the priors enable:
+        e_collision (with a target), log10_sigma_mps (always last)."""
+        names = [n for n, (i, _) in LATENTS.items() if i < len(self.objects)]
+        if self.priors.infer_restitution and self.target is not None:
+            names.append("e_collision")
+        if self.priors.infer_sigma:
+            names.append("log10_sigma_mps")
+        return tuple(names)
 
     def latent_specs(self) -> tuple[Latent, ...]:
         """The latents of this scene (the target's only with a target), with its prior bounds."""
-        return tuple(replace(LATENT_SPECS[n], bounds=self.priors.bounds[n]) for n in self.latent_names)
+        return tuple(replace(ALL_SPECS[n], bounds=self.priors.bound(n)) for n in self.latent_names)
 
     def latents(self) -> dict[str, float]:
         return {n: float(getattr(self.objects[i], a)) for n, (i, a) in LATENTS.items() if i < len(self.objects)}
 
     def with_values(self, values: dict[str, float]) -> "Scene":
-        """A copy with latents (m1_kg, k1, m2_kg, k2) and knobs (offset_units, angle_deg, e1, e2) set."""
+        """A copy with latents (m1_kg, k1, m2_kg, k2, e_collision) and knobs (offset_units,
+        angle_deg, e1, e2) set. log10_sigma_mps (the likelihood's noise) is accepted and
+        changes nothing: it is no part of the physical scene."""
         objs = list(self.objects)
         ramp = self.ramp
+        collision = self.collision_restitution
         for name, value in values.items():
             if name in LATENTS:
                 i, attr = LATENTS[name]
@@ -205,9 +281,15 @@ class Scene(SceneFile):
                 objs[i] = replace(objs[i], restitution=float(value))
             elif name == "angle_deg":
                 ramp = replace(ramp, angle_deg=float(value))
+            elif name == "e_collision":
+                if len(objs) < 2:
+                    raise SceneError(f"{name}: this scene has no target object")
+                collision = float(value)
+            elif name == "log10_sigma_mps":
+                pass
             else:
                 raise SceneError(f"unknown name {name!r}; expected one of {', '.join([*LATENTS, *SCENE_KNOBS])}")
-        new = replace(self, objects=tuple(objs), ramp=ramp)
+        new = replace(self, objects=tuple(objs), ramp=ramp, collision_restitution=collision)
         new.validate()
         return new
 
@@ -243,6 +325,12 @@ class Scene(SceneFile):
             raise SceneError("objects[0]: start position puts the object past the ramp's foot")
         if self.camera is not None and self.sim_hz % self.camera.fps:
             raise SceneError(f"sim_hz ({self.sim_hz}) must be a multiple of camera.fps ({self.camera.fps})")
+        e = self.collision_restitution
+        if e is not None:
+            if self.target is None:
+                raise SceneError("collision_restitution: this scene has no target object")
+            if isinstance(e, bool) or not isinstance(e, (int, float)) or not 0.0 <= e <= 1.0:
+                raise SceneError(f"collision_restitution: expected a number in [0, 1], got {e!r}")
 
     def to_json(self) -> dict:
         d: dict[str, Any] = {
@@ -255,6 +343,8 @@ class Scene(SceneFile):
             "objects": [o.to_json() for o in self.objects],
             "priors": self.priors.to_json(),
         }
+        if self.collision_restitution is not None:
+            d["collision_restitution"] = self.collision_restitution
         if self.camera is not None:
             d["camera"] = self.camera.to_json()
         return d
@@ -329,20 +419,40 @@ def scene_from_json(data: Any) -> Scene:
             bounds[k] = check_bounds(LATENT_SPECS[k], lo, hi)
         except ValueError as e:
             raise SceneError(f"priors.{e}") from None
+    for k in OPTIONAL_SPECS:   # the optional latents' bounds, where given
+        if k in pd:
+            lo, hi = pair(pd, k, "priors", None)
+            try:
+                bounds[k] = check_bounds(OPTIONAL_SPECS[k], lo, hi)
+            except ValueError as e:
+                raise SceneError(f"priors.{e}") from None
+    observation = field_value(pd, "observation", "priors", base.observation)
+    if not isinstance(observation, str) or observation not in OBSERVATIONS:
+        raise SceneError(f"priors.observation: expected one of {', '.join(OBSERVATIONS)}, got {observation!r}")
+    dof = number(pd, "student_t_dof", "priors", base.student_t_dof, lo=0, lo_open=True)
+    flags = {}
+    for flag in ("infer_sigma", "infer_restitution"):
+        flags[flag] = field_value(pd, flag, "priors", False)
+        if not isinstance(flags[flag], bool):
+            raise SceneError(f"priors.{flag}: expected true or false, got {flags[flag]!r}")
     off = pair(pd, "offset_units", "priors", list(base.offset_units))
     types = field_value(pd, "shape_types", "priors", list(base.shape_types))
     if not isinstance(types, list) or not types or any(t not in SHAPE_TYPES for t in types):
         raise SceneError(f"priors.shape_types: expected a non-empty list from {', '.join(SHAPE_TYPES)}")
     priors = Priors(bounds=bounds, offset_units=(int(off[0]), int(off[1])), shape_types=tuple(types),
-                    size_m=pair(pd, "size_m", "priors", list(base.size_m)))
+                    size_m=pair(pd, "size_m", "priors", list(base.size_m)), observation=observation,
+                    student_t_dof=dof, **flags)
     cam = field_value(data, "camera", "", None)
+    collision = field_value(data, "collision_restitution", "", None)
+    if collision is not None:
+        collision = number(data, "collision_restitution", "", lo=0, hi=1)
     scene = Scene(
         ramp=ramp, objects=objects, camera=camera_from_json(cam) if cam is not None else None,
         unit_m=number(data, "unit_m", "", 0.02, lo=0, lo_open=True),
         start_units=number(data, "start_units", "", 30.0, lo=0),
         sim_hz=number(data, "sim_hz", "", 240, lo=1, integer=True),
         gravity_mps2=number(data, "gravity_mps2", "", 9.81, lo=0),
-        priors=priors)
+        priors=priors, collision_restitution=collision)
     scene.validate()
     return scene
 

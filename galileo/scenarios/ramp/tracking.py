@@ -29,6 +29,11 @@ Pipeline, for a video and a scene file whose camera describes it:
    ends of a visible run), no smoothing. Frames where an object is not seen are marked
    `visible: false` with null position and velocity, never invented.
 
+A video in which nothing moves (no foreground at its start or its end) is evidence, not an
+error: every object is reported where the scene file puts it, at rest in every frame, with
+a note (`held_still`); inference then finds the ramp object's friction at least tan of the
+ramp angle and the masses unidentified.
+
 The steps' general parts live in `galileo.vision` (background, silhouette, klt, pose,
 tracker, velocity, shapenet); this module holds what is the ramp's own: where objects
 rest (the ramp or the ground), where the ramp object may start, and the orchestration.
@@ -44,7 +49,7 @@ from tqdm import tqdm
 
 from ...camera import backproject_to_plane
 from ...datatypes import ObjectTrack, Tracks
-from ...errors import GalileoError, StillVideo
+from ...errors import GalileoError
 from ...shapes import SHAPE_TYPES, Shape, shape_class
 from ...video import read_video_yuv, yuv_to_rgb
 from ...vision import shapenet
@@ -224,6 +229,40 @@ def _relocate(scene: Scene, t: ObjectTracker, blob: np.ndarray) -> None:
     t.reset(np.array([centre[0], centre[2], -phi]))
 
 
+# -- a video in which nothing moves --------------------------------------------------------------
+
+def still_note(scene: Scene) -> str:
+    """What a video in which nothing moves says, for `Tracks.notes`."""
+    angle = scene.ramp.angle_deg
+    unknown = "the masses and the target's friction are" if scene.target is not None else "its mass is"
+    return (f"nothing moves in this video: the objects are placed where the scene file puts them and held still "
+            f"(their shapes and the ramp object's start are the scene file's: an object that never moves shows no "
+            f"silhouette against the background); the ramp object's friction is at least tan({angle:g} deg) = "
+            f"{math.tan(math.radians(angle)):.3f} and {unknown} not identified")
+
+
+def held_still(scene: Scene, n_frames: int) -> Tracks:
+    """Tracks of a video in which nothing moves: every object where the scene file puts it
+    (`Scene.initial_pose`; the ramp object's offset the scene's own), seen in every frame
+    at zero velocity, with the scene file's shapes and a note (`still_note`).
+
+    The bottom-up recognition is not attempted: the background models hold the still
+    objects themselves, so there is no silhouette to fit sizes and offset to (and the
+    shape CNN reads the appearance inside one); the scene file's statement is all there is.
+    Positions are the object centres in the fall-line plane (y = 0), as tracking reports.
+    """
+    cam = scene.camera
+    objects = []
+    for i, obj in enumerate(scene.objects):
+        centre, _ = scene.initial_pose(i)
+        pos = np.tile([float(centre[0]), 0.0, float(centre[2])], (n_frames, 1))
+        vis = np.ones(n_frames, bool)
+        objects.append(ObjectTrack(obj.name, obj.role, pos, np.zeros((n_frames, 3)), vis, obj.shape,
+                                   obj.offset_units if obj.role == "ramp" else None, "scene",
+                                   center_px=cam.project(pos)))
+    return Tracks(cam.fps, objects, [still_note(scene)])
+
+
 # -- the whole pipeline ------------------------------------------------------------------------
 
 def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
@@ -258,8 +297,11 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
     fg0_small = full_res(foreground(small[0], bg_end, noise), full_hw)
     fg_last = full_res(foreground(tiny[-1], bg_start, noise), full_hw)
     if largest_component(fg0_small) is None and largest_component(fg_last) is None:
-        bar.close()
-        raise StillVideo(f"nothing moves in {video_path}: no foreground at the start or the end of the video")
+        bar.close()   # nothing moves: evidence in itself (the ramp object holds on the ramp)
+        tracks = held_still(scene, n)
+        if debug_video is not None:
+            write_debug_video(debug_video, (yuv_to_rgb(g, c) for g, c in zip(gray, chroma)), tracks, fps)
+        return tracks
 
     # frame-0 foreground at full resolution, within 2 px of the robust half-resolution one
     near = dilate(fg0_small, NEAR_PX)

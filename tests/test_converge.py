@@ -1,0 +1,76 @@
+"""Running until converged, and the default moves on the ramp (issue 12).
+
+The physics is the frozen demo's (tests/data): a block slides down a 20 degree ramp
+(true k1 = 0.22) and hits a cardboard box (true m1/m2 = 1.17)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from galileo.errors import GalileoError
+from galileo.runner import RunConfig, infer
+
+
+@pytest.fixture(scope="module")
+def frozen(demo_frozen):
+    return demo_frozen
+
+
+def test_chains_do_not_depend_on_how_their_sweeps_are_cut_into_blocks(frozen):
+    scene, tracks, _ = frozen
+    # an R-hat target no run reaches: 20 sweeps, then one block of 25 up to the budget of 45
+    grown = infer(scene, tracks, RunConfig(chains=2, sweeps=20, seed=3, workers=1, until_rhat=1.000001,
+                                           max_sweeps=45), progress=False)
+    whole = infer(scene, tracks, RunConfig(chains=2, sweeps=45, seed=3, workers=1, warmup=10), progress=False)
+    assert grown.samples.shape == whole.samples.shape == (2, 45, 4)
+    assert np.array_equal(grown.samples, whole.samples) and np.array_equal(grown.logliks, whole.logliks)
+    for k in grown.proposals:
+        assert np.array_equal(grown.proposals[k], whole.proposals[k], equal_nan=True)
+    assert not grown.diagnostics()["converged"]
+
+
+def test_default_moves_bring_every_chain_off_the_at_rest_plateau(frozen):
+    """The paper's moves leave chains far below the MAP after 40 sweeps (some with k1 > tan 20
+    deg, on the plateau where the block never moves); the k1 move from the tracked
+    acceleration brings them all to the mode within the run."""
+    scene, tracks, truth = frozen
+    cfg = dict(chains=8, sweeps=40, seed=0, workers=1)
+    paper = infer(scene, tracks, RunConfig(moves="paper", **cfg), progress=False)
+    mine = infer(scene, tracks, RunConfig(**cfg), progress=False)
+    tan = math.tan(math.radians(scene.ramp.angle_deg))
+    for res, stuck_expected in ((paper, True), (mine, False)):
+        last_ll = res.logliks[:, -1]
+        stuck = last_ll < res.map_loglik - 100
+        assert stuck.any() == stuck_expected
+        if stuck_expected:   # the negative control: some are on the plateau, others far from k1's mode
+            assert np.any(res.samples[stuck, -1, 1] > tan)
+    # every chain of the default run ends near the true friction, and the ratio's interval holds the truth
+    assert np.all(np.abs(mine.samples[:, -1, 1] - truth[1]) < 0.01)
+    ratio = mine.derived_posterior()["mass_ratio"]
+    assert ratio["q05"] < truth[0] / truth[2] < ratio["q95"]
+    acc = mine.diagnostics()["acceptance"]
+    assert {"k1_from_acceleration_move", "mass_product_move", "mass_ratio_move"} <= set(acc)
+
+
+def test_result_json_says_whether_and_why_not_converged(frozen, tmp_path):
+    from galileo.jsonio import read_json
+
+    scene, tracks, _ = frozen
+    res = infer(scene, tracks, RunConfig(chains=4, sweeps=20, workers=1), progress=False)
+    res.save(tmp_path / "r.json")
+    d = read_json(tmp_path / "r.json", "result")
+    assert d["converged"] is False and d["why_not"] and d["diagnostics"]["per_latent_converged"]
+    assert len(d["diagnostics"]["per_chain"]) == 4
+    assert set(d["posterior_derived"]) == {"mass_ratio", "log_mass_ratio"}
+    assert d["config"]["moves"]["set"] == "default"
+    assert res.warning() and "not converged" in res.warning()
+
+
+@pytest.mark.parametrize("bad", [dict(moves="fast"), dict(until_rhat=1.0), dict(until_rhat=float("nan")),
+                                 dict(min_ess=-1), dict(max_sweeps=10, until_rhat=1.01), dict(warmup=99)])
+def test_bad_convergence_settings_are_refused(frozen, bad):
+    scene, tracks, _ = frozen
+    with pytest.raises(GalileoError):
+        infer(scene, tracks, RunConfig(chains=2, sweeps=20, workers=1, **bad), progress=False)
