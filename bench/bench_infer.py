@@ -54,6 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=None, help="workers of the default run (default: all cores)")
     ap.add_argument("--repeat", type=int, default=3, help="runs of each path, alternating (default 3; medians)")
+    ap.add_argument("--moves", choices=["paper", "default"], default="paper",
+                    help="move set of both runs (default paper: the speed-ups are measured on the paper's protocol)")
     ap.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     args = ap.parse_args(argv)
     if args.chains is None:
@@ -85,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     tracks = Tracks.load(args.tracks) if args.tracks else registry.of(scene).track(video, scene, progress=False)
     track_s = time.perf_counter() - t0
 
-    base = dict(chains=args.chains, sweeps=args.sweeps, seed=args.seed)
+    base = dict(chains=args.chains, sweeps=args.sweeps, seed=args.seed, moves=args.moves)
     walls_naive, walls_default = [], []
     for _ in range(args.repeat):
         naive = infer(scene, tracks, RunConfig(speedups=False, workers=1, **base), progress=False)

@@ -51,7 +51,7 @@ def run(args) -> int:
     if not held:
         raise GalileoError("the model held out no objects: Fig. 4 is measured on held-out objects only")
     videos = [e for e in examples if e.object_id in held]
-    cfg = RunConfig(chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=args.workers)
+    cfg = RunConfig(chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=args.workers, moves=args.moves)
     pool = local_executor(args.workers, args.chains)
     per_video = []
     try:
@@ -174,6 +174,8 @@ def main(argv=None) -> int:
     ap.add_argument("--videos", type=int, default=None, help="at most this many videos")
     ap.add_argument("--move", type=int, default=0, metavar="EVERY",
                     help="recognition runs also use the independence move every EVERY sweeps (default 0: off)")
+    ap.add_argument("--moves", choices=["paper", "default"], default="paper",
+                    help="move set (default paper: Fig. 4 measures the paper's sampler from each start)")
     ap.add_argument("--out", required=True)
     args = ap.parse_args(argv)
     return run_reporting_errors("bench_recognition", lambda: run(args))

@@ -342,7 +342,7 @@ def run_chain(seed: int, chain: int, init_position: Sequence[float], logdensity:
         state, inf = sweep(rng, state, logdensity, bounds, proposal, early_rejection, independence=independence,
                            moves=moves)
         if state.sweep <= warmup:
-            proposal, moves = adapt(proposal, moves, inf, state.sweep, bounds)
+            proposal, moves = adapt(proposal, moves, inf, state.sweep, bounds, state.position)
         positions.append(state.position.copy())
         values.append(state.logdensity)
         infos.extend(inf)
@@ -350,8 +350,9 @@ def run_chain(seed: int, chain: int, init_position: Sequence[float], logdensity:
 
 
 def adapt(proposal: Proposal, moves: Sequence, infos: Sequence[MHInfo], sweep_number: int,
-          bounds: np.ndarray) -> tuple[Proposal, tuple]:
-    """One warm-up update of the single-site widths and of every move that can adapt."""
+          bounds: np.ndarray, position: np.ndarray | None = None) -> tuple[Proposal, tuple]:
+    """One warm-up update of the single-site widths and of every move that can adapt (a move's
+    `adapted(accepted, eta)`; a move that also learns from where the chain is has `observe`)."""
     proposal = adapt_proposal(proposal, infos, sweep_number, bounds)
     moves = list(moves)
     eta = adapt_rate(sweep_number)
@@ -359,4 +360,80 @@ def adapt(proposal: Proposal, moves: Sequence, infos: Sequence[MHInfo], sweep_nu
         k = -info.site - 2
         if 0 <= k < len(moves) and hasattr(moves[k], "adapted"):
             moves[k] = moves[k].adapted(bool(info.accepted), eta)
+    if position is not None:
+        moves = [m.observe(position) if hasattr(m, "observe") else m for m in moves]
     return proposal, tuple(moves)
+
+
+JOINT_TARGET_ACCEPTANCE = 0.25   # a joint random walk in a few dimensions (Roberts, Gelman & Gilks 1997: 0.234)
+JOINT_FORGET = 0.95              # the covariance's memory in warm-up sweeps: about 1 / (1 - this)
+
+
+class JointRW(NamedTuple):
+    """A joint Gaussian random walk over `sites` with a covariance learned in warm-up (adaptive
+    Metropolis, Haario et al. 2001), in a transformed space: the log of the latents in
+    `log_sites` (positive ones whose scale matters, e.g. masses), the others as they are.
+    y' = y + scale L z, z ~ N(0, I), symmetric in y; in the latents' own space the Jacobian
+    gives log Hastings = sum over log sites of (y'_i - y_i). It follows correlated posteriors
+    (the ramp's target friction against the mass ratio) that single-site moves cross slowly.
+    During warm-up `observe` updates an exponentially weighted covariance of the chain's
+    positions and `adapted` the scale towards acceptance 0.25; after warm-up both are frozen."""
+    sites: tuple[int, ...]
+    log_sites: tuple[int, ...]
+    chol: tuple            # lower-triangular factor of the covariance, rows as tuples
+    scale: float
+    mean: tuple | None = None
+    cov: tuple | None = None
+    every: int = 1
+    name: str = "joint_rw"
+
+    @classmethod
+    def initial(cls, sites: Sequence[int], log_sites: Sequence[int], sd: Sequence[float], **kw) -> "JointRW":
+        """Start with independent components of SD `sd` (in the transformed space)."""
+        c = np.diag(np.asarray(sd, float) ** 2)
+        return cls(tuple(int(i) for i in sites), tuple(int(i) for i in log_sites), _rows(np.linalg.cholesky(c)),
+                   2.38 / math.sqrt(len(sites)), None, _rows(c), **kw)
+
+    def _y(self, x: np.ndarray) -> np.ndarray:
+        return np.array([math.log(x[i]) if i in self.log_sites else float(x[i]) for i in self.sites])
+
+    def propose(self, rng: np.random.Generator, position) -> tuple[np.ndarray, float]:
+        x = np.asarray(position, float).copy()
+        z = rng.normal(size=len(self.sites))
+        if any(x[i] <= 0 for i in self.log_sites):
+            return x, -math.inf
+        step = self.scale * (np.asarray(self.chol, float) @ z)
+        log_h = 0.0
+        for k, i in enumerate(self.sites):
+            if i in self.log_sites:
+                x[i] = x[i] * math.exp(step[k])
+                log_h += float(step[k])
+            else:
+                x[i] = x[i] + float(step[k])
+        return x, log_h
+
+    def adapted(self, accepted: bool, eta: float) -> "JointRW":
+        s = self.scale * math.exp(eta * (float(accepted) - JOINT_TARGET_ACCEPTANCE))
+        return self._replace(scale=float(min(10.0, max(1e-3, s))))
+
+    def observe(self, position) -> "JointRW":
+        x = np.asarray(position, float)
+        if any(x[i] <= 0 for i in self.log_sites):
+            return self
+        y = self._y(x)
+        if self.mean is None:
+            return self._replace(mean=tuple(map(float, y)))
+        m0 = np.asarray(self.mean, float)
+        m1 = JOINT_FORGET * m0 + (1 - JOINT_FORGET) * y
+        c = JOINT_FORGET * np.asarray(self.cov, float) + (1 - JOINT_FORGET) * np.outer(y - m0, y - m1)
+        c = 0.5 * (c + c.T)
+        jitter = 1e-12 + 1e-6 * float(np.trace(c)) / len(y)
+        try:
+            chol = np.linalg.cholesky(c + jitter * np.eye(len(y)))
+        except np.linalg.LinAlgError:
+            return self._replace(mean=tuple(map(float, m1)))
+        return self._replace(mean=tuple(map(float, m1)), cov=_rows(c), chol=_rows(chol))
+
+
+def _rows(a: np.ndarray) -> tuple:
+    return tuple(tuple(float(v) for v in row) for row in np.asarray(a))

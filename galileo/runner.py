@@ -35,7 +35,7 @@ from . import registry
 from .datatypes import Tracks
 from .errors import GalileoError
 from .latents import Latent, Noise, by_name, check_bounds, check_noise, check_widths, default_widths
-from .mcmc import MHState, Proposal, adapt, chain_rng, sweep
+from .mcmc import JointRW, MHState, Proposal, adapt, chain_rng, sweep
 from .results import MIN_ESS, RHAT_TARGET, InferenceResult, convergence, kept_draws
 
 MOVE_SETS = ("default", "paper")
@@ -262,7 +262,7 @@ def run_task(task: ChainTask) -> dict:
         state, inf = sweep(rng, state, lik, task.bounds, proposal, task.speedups,
                            independence=task.independence, moves=moves)
         if state.sweep <= task.adapt_until:
-            proposal, moves = adapt(proposal, moves, inf, state.sweep, task.bounds)
+            proposal, moves = adapt(proposal, moves, inf, state.sweep, task.bounds, state.position)
         positions.append(state.position.copy())
         logliks.append(state.logdensity)
         infos.extend(inf)
@@ -405,7 +405,7 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
     else:
         starts = scenario.initial_positions(prepared, latents, bounds, cfg.chains, cfg.seed)
     independence = chosen.independence if chosen is not None else None
-    moves = tuple(scenario.moves(prepared, tracks, latents, bounds)) if cfg.moves == "default" else ()
+    moves = default_moves(scenario, prepared, tracks, latents, bounds, settings) if cfg.moves == "default" else ()
     warmup = cfg.warmup_sweeps()
     problem = Problem.of(scene, tracks)
     tasks = [first_task(problem, c, starts[c], cfg.seed, cfg.sweeps, settings, names, cfg.speedups, independence,
@@ -457,6 +457,24 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
 
 
 MIN_BLOCK_SWEEPS = 25
+JOINT_LOG_SD = 0.3
+
+
+def default_moves(scenario, prepared, tracks: Tracks, latents: Sequence[Latent], bounds: np.ndarray,
+                  settings: Settings) -> tuple:
+    """The default move set's joint moves: the scenario's own, then an adaptive joint random
+    walk over every continuous latent (log scale for those bounded away from 0 above 0, like
+    masses) that learns the posterior's correlations in warm-up."""
+    moves = list(scenario.moves(prepared, tracks, latents, bounds))
+    sites = [j for j, lat in enumerate(latents) if not lat.integer]
+    if len(sites) >= 2:
+        log_sites = [j for j in sites if latents[j].limits[0] >= 0 and bounds[j, 0] > 0 and latents[j].unit != "1"]
+        narrow = settings.narrow
+        # the first covariance: the narrow widths, and 0.3 in log (a 35 % step) for log sites
+        sd = [JOINT_LOG_SD if j in log_sites else float(narrow[j] if isinstance(narrow, tuple) else narrow)
+              for j in sites]
+        moves.append(JointRW.initial(sites, log_sites, sd))
+    return tuple(moves)
 
 
 def _merge(results: list[dict]) -> dict:

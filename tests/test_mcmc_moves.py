@@ -141,3 +141,41 @@ def test_convergence_verdict_on_agreeing_and_disagreeing_chains():
     short = [x[:40] for x in same]                       # agreeing, but 320 draws cannot give an ESS of 400
     v = convergence(short, ("a", "b"))
     assert not v["converged"] and len(v["why_not"]) == 2 and all("ESS" in w for w in v["why_not"])
+
+
+# -- the adaptive joint random walk ---------------------------------------------------------------
+
+CORR = stats.multivariate_normal([math.log(0.3), 0.4], [[0.04, 0.018], [0.018, 0.01]])   # (log m, k), rho 0.9
+
+
+def _corr_logdensity(x, threshold=None):
+    """A posterior over (m, k) whose (log m, k) is a correlated normal: the density in (m, k)
+    carries the Jacobian 1 / m."""
+    if x[0] <= 0:
+        return -math.inf
+    return float(CORR.logpdf([math.log(x[0]), x[1]]) - math.log(x[0]))
+
+
+def test_joint_random_walk_learns_a_correlation_and_fails_without_its_jacobian():
+    from galileo.mcmc import JointRW
+
+    bounds = [(1e-3, 5.0), (-1.0, 2.0)]
+    move = JointRW.initial((0, 1), (0,), (0.3, 0.05))
+    pos, _, infos = run_chain(0, 0, [0.5, 0.5], _corr_logdensity, bounds, 12000, Proposal(0.05, 0.5, 0), True,
+                              moves=(move,), warmup=2000)
+    kept = pos[2000::5]
+    y = np.log(kept[:, 0])
+    assert stats.kstest(y, stats.norm(math.log(0.3), 0.2).cdf).pvalue > 1e-3
+    assert stats.kstest(kept[:, 1], stats.norm(0.4, 0.1).cdf).pvalue > 1e-3
+    joint = np.array([i.accepted for i in infos[2000 * 3:] if i.site == -2])
+    assert 0.15 < joint.mean() < 0.45        # the scale adapted towards 0.25 and then stayed
+    # the same move without its Jacobian samples another distribution (biased towards small m)
+    rng = chain_rng(0, 0)
+    frozen = move._replace(chol=((0.2, 0.0), (0.09, 0.0436)), scale=1.5)
+    state = MHState(np.array([0.3, 0.4]), _corr_logdensity([0.3, 0.4]), 0)
+    out = []
+    for _ in range(12000):
+        state, _ = step_move(rng, state, frozen, _corr_logdensity, np.array(bounds), True, -2, hastings=False)
+        out.append(state.position.copy())
+    bad = np.array(out)[1000::5]
+    assert stats.kstest(np.log(bad[:, 0]), stats.norm(math.log(0.3), 0.2).cdf).pvalue < 1e-6

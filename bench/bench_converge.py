@@ -1,0 +1,149 @@
+"""Time to a converged posterior: `galileo infer --until-rhat` end to end, default moves against
+the paper's (issue 12).
+
+Usage (from the repository root):
+    python bench/bench_converge.py [--dataset DIR] [--videos N] [--chains 16] [--sweeps 75]
+                                   [--max-sweeps 1500] [--rhat 1.01] [--min-ess 400]
+                                   [--moves default paper] [--workers N] --out DIR
+
+For each video it runs, as a user would, the command
+
+    galileo infer VIDEO --scene SCENE --tracks TRACKS --moves M --until-rhat R --min-ess E
+                  --max-sweeps N --chains C --sweeps S --out OUT/<video>-<M>.json --quiet
+
+in a new process and times it from process start to result.json written (the tracks are
+made once beforehand with `galileo track`, whose time is not counted: it is the same for
+both move sets). Videos: the dataset's in which the ramp object moves (its true k1 below
+tan of the angle; in a still video the masses are not identified and convergence is about
+the prior); without --dataset, the demo preset is rendered into OUT/data.
+
+Reported per video and move set: wall seconds, sweeps run, converged or not, the largest
+R-hat and the smallest bulk/tail ESS, the MAP's k1 error. Written to OUT/converge.json and
+OUT/converge.md. Target (issue 12): R-hat <= 1.01 and ESS >= 400 for every latent within 5 s
+per video on 2 cores.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from galileo.errors import GalileoError, run_reporting_errors  # noqa: E402
+from galileo.jsonio import read_json, write_json  # noqa: E402
+
+TARGET_S = 5.0
+
+
+def galileo(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "galileo.cli", *args], capture_output=True, text=True, cwd=ROOT)
+
+
+def videos_of(dataset: Path) -> list[dict]:
+    index = read_json(dataset / "index.json", "dataset index")
+    out = []
+    for v in index["videos"]:
+        folder = dataset / v["name"]
+        truth = read_json(folder / "truth.json", "truth")["latents"]
+        moving = truth["k1"] < math.tan(math.radians(truth["angle_deg"]))
+        out.append({"name": v["name"], "folder": folder, "truth": truth, "moving": moving})
+    return out
+
+
+def run(args) -> int:
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.dataset:
+        dataset = Path(args.dataset)
+    else:
+        dataset = out / "data"
+        if not (dataset / "index.json").exists():
+            r = galileo("dataset", "--preset", "demo", "--out", str(dataset), "--quiet")
+            if r.returncode:
+                raise GalileoError(r.stderr.strip())
+    vids = [v for v in videos_of(dataset) if v["moving"]][: args.videos]
+    rows = []
+    for v in vids:
+        tracks = v["folder"] / "tracks.json"
+        if not tracks.exists():
+            r = galileo("track", str(v["folder"] / "video.mp4"), "--scene", str(v["folder"] / "scene.json"),
+                        "--out", str(tracks), "--quiet")
+            if r.returncode:
+                rows.append({"video": v["name"], "error": r.stderr.strip()})
+                continue
+        for moves in args.moves:
+            res = out / f"{v['name']}-{moves}.json"
+            cmd = ["infer", str(v["folder"] / "video.mp4"), "--scene", str(v["folder"] / "scene.json"),
+                   "--tracks", str(tracks), "--moves", moves, "--until-rhat", str(args.rhat),
+                   "--min-ess", str(args.min_ess), "--max-sweeps", str(args.max_sweeps), "--chains", str(args.chains),
+                   "--sweeps", str(args.sweeps), "--seed", str(args.seed), "--out", str(res), "--quiet"]
+            if args.workers:
+                cmd += ["--workers", str(args.workers)]
+            t0 = time.perf_counter()
+            r = galileo(*cmd)
+            wall = time.perf_counter() - t0
+            if r.returncode:
+                rows.append({"video": v["name"], "moves": moves, "error": r.stderr.strip()})
+                continue
+            d = read_json(res, "result")
+            diag = d["diagnostics"]
+            rs = [x for x in diag["r_hat"].values() if x is not None]
+            es = [x for k in ("ess", "ess_tail") for x in diag[k].values() if x is not None]
+            rows.append({"video": v["name"], "moves": moves, "wall_s": wall, "chains_s": d["timing_s"]["wall"],
+                         "sweeps": diag["sweeps"], "converged": d["converged"],
+                         "rhat_max": max(rs) if rs else None, "ess_min": min(es) if es else None,
+                         "k1_error": abs(d["map"]["k1"] - v["truth"]["k1"]), "why_not": d["why_not"][:2]})
+            print(f"{v['name']:40s} {moves:8s} {wall:6.1f} s  {diag['sweeps']:5d} sweeps  "
+                  f"{'converged' if d['converged'] else 'NOT converged':14s} R-hat max {rows[-1]['rhat_max']:.3f}  "
+                  f"ESS min {rows[-1]['ess_min']:.0f}", flush=True)
+    summary = {}
+    for moves in args.moves:
+        mine = [r for r in rows if r.get("moves") == moves and "error" not in r]
+        conv = [r for r in mine if r["converged"]]
+        walls = sorted(r["wall_s"] for r in conv)
+        summary[moves] = {"videos": len(mine), "converged": len(conv),
+                          "median_wall_s_converged": walls[len(walls) // 2] if walls else None,
+                          "within_target": sum(w <= TARGET_S for w in walls)}
+    doc = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]), "machine": platform.processor() or
+           platform.machine(), "cores": os.cpu_count(), "settings": vars(args) | {"dataset": str(dataset)},
+           "rows": rows, "summary": summary, "target_s": TARGET_S}
+    write_json(out / "converge.json", doc)
+    lines = ["| video | moves | wall s | sweeps | converged | R-hat max | ESS min | k1 error |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if "error" in r:
+            lines.append(f"| {r['video']} | {r.get('moves', '')} | error: {r['error']} | | | | | |")
+        else:
+            lines.append(f"| {r['video']} | {r['moves']} | {r['wall_s']:.1f} | {r['sweeps']} | {r['converged']} | "
+                         f"{r['rhat_max']:.3f} | {r['ess_min']:.0f} | {r['k1_error']:.4f} |")
+    (out / "converge.md").write_text("\n".join(lines) + "\n")
+    print(json.dumps(summary, indent=1))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--dataset", help="a rendered ramp dataset (default: render the demo preset)")
+    ap.add_argument("--videos", type=int, default=None, help="at most this many moving videos")
+    ap.add_argument("--chains", type=int, default=16)
+    ap.add_argument("--sweeps", type=int, default=75, help="the first block (warm-up: half of it)")
+    ap.add_argument("--max-sweeps", type=int, default=1500)
+    ap.add_argument("--rhat", type=float, default=1.01)
+    ap.add_argument("--min-ess", type=float, default=400)
+    ap.add_argument("--moves", nargs="+", choices=["default", "paper"], default=["default", "paper"])
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--out", required=True)
+    args = ap.parse_args(argv)
+    return run_reporting_errors("bench_converge", lambda: run(args))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
