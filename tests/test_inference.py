@@ -354,7 +354,7 @@ def test_save_writes_documented_result_and_npz(small_result: InferenceResult, tm
     for k in ("r_hat", "ess", "ess_tail"):
         assert set(diag[k]) == set(LATENT_NAMES), k
     assert set(diag["acceptance"]) == set(LATENT_NAMES) | {
-        "k1_from_acceleration_move", "mass_product_move", "mass_ratio_move"}
+        "k1_from_acceleration_move", "mass_product_move", "mass_ratio_move", "joint_rw_move"}
     for j, n in enumerate(LATENT_NAMES):
         sel = res.proposals["site"] == j
         assert diag["acceptance"][n] == pytest.approx(res.proposals["accepted"][sel].mean())
@@ -381,8 +381,8 @@ def test_saved_run_equals_live_run(small_result: InferenceResult, tmp_path):
     for k, v in res.proposals.items():
         assert rec[f"proposal_{k}"].dtype == v.dtype
         assert np.array_equal(rec[f"proposal_{k}"], v, equal_nan=v.dtype.kind == "f"), k
-    # one proposal per latent per sweep, then one per joint move (the ramp's three)
-    assert res.samples.shape == (2, 6, 4) and res.proposals["accepted"].shape == (2, 6 * (4 + 3))
+    # one proposal per latent per sweep, then one per joint move (the ramp's three and the joint walk)
+    assert res.samples.shape == (2, 6, 4) and res.proposals["accepted"].shape == (2, 6 * (4 + 4))
 
 
 def test_load_samples_rejects_garbage(tmp_path):
