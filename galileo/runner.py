@@ -39,6 +39,7 @@ from .mcmc import JointRW, MHState, Proposal, adapt, chain_rng, sweep
 from .results import MIN_ESS, RHAT_TARGET, InferenceResult, convergence, kept_draws
 
 MOVE_SETS = ("default", "paper")
+UNTIL_WARMUP_SWEEPS = 100
 
 def initial_positions(bounds: np.ndarray, n_chains: int, seed: int) -> np.ndarray:
     """Chain starts drawn uniformly from the prior (reproducible from the seed)."""
@@ -144,9 +145,16 @@ class RunConfig:
     rhat_target: float = RHAT_TARGET    # what `converged` in a result means (also without until_rhat)
 
     def warmup_sweeps(self) -> int:
+        """Sweeps of width adaptation: none with the paper's moves; else `warmup`, by default
+        half of `sweeps` (with `until_rhat`: at least 100 sweeps or all of the first block,
+        since adaptation needs about that long and the run goes on anyway)."""
         if self.moves == "paper":
             return 0
-        return int(self.sweeps // 2 if self.warmup is None else self.warmup)
+        if self.warmup is not None:
+            return int(self.warmup)
+        if self.until_rhat:
+            return int(max(self.sweeps // 2, min(UNTIL_WARMUP_SWEEPS, self.sweeps)))
+        return int(self.sweeps // 2)
 
     def sweep_budget(self) -> int:
         return int(self.max_sweeps if self.max_sweeps is not None else max(self.sweeps, 20 * self.sweeps))

@@ -22,7 +22,7 @@ def test_chains_do_not_depend_on_how_their_sweeps_are_cut_into_blocks(frozen):
     scene, tracks, _ = frozen
     # an R-hat target no run reaches: 20 sweeps, then one block of 25 up to the budget of 45
     grown = infer(scene, tracks, RunConfig(chains=2, sweeps=20, seed=3, workers=1, until_rhat=1.000001,
-                                           max_sweeps=45), progress=False)
+                                           max_sweeps=45, warmup=10), progress=False)
     whole = infer(scene, tracks, RunConfig(chains=2, sweeps=45, seed=3, workers=1, warmup=10), progress=False)
     assert grown.samples.shape == whole.samples.shape == (2, 45, 4)
     assert np.array_equal(grown.samples, whole.samples) and np.array_equal(grown.logliks, whole.logliks)
