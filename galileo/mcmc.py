@@ -266,6 +266,37 @@ class LogScale(NamedTuple):
         return self._replace(width=float(min(5.0, max(1e-4, self.width * math.exp(eta * (accepted - TARGET_ACCEPTANCE))))))
 
 
+class RayMove(NamedTuple):
+    """Redraw two positive latents along the ray through the origin they lie on: with
+    r = x_i / x_j fixed, x_j' is drawn from the density proportional to x_j' on the part of
+    the ray inside the box prior [lo_i, hi_i] x [lo_j, hi_j], and x_i' = r x_j'. For a uniform
+    prior on the box that density is the prior's own conditional along the ray (in
+    coordinates (r, x_j) the prior's density is proportional to x_j, the Jacobian), so the
+    Hastings factor is exactly 1 and the move is accepted with probability
+    min(1, L(x') / L(x)): always, for a likelihood that depends only on the ratio (the ramp's
+    masses in a collision). `bounds` are the two latents' prior bounds; the move is exact only
+    for a uniform prior on them (the default's)."""
+    sites: tuple[int, int]
+    bounds: tuple[tuple[float, float], tuple[float, float]]
+    every: int = 1
+    name: str = "ray"
+
+    def propose(self, rng: np.random.Generator, position) -> tuple[np.ndarray, float]:
+        x = np.asarray(position, float).copy()
+        i, j = self.sites
+        (lo_i, hi_i), (lo_j, hi_j) = self.bounds
+        u = rng.uniform()
+        if not (x[i] > 0 and x[j] > 0):
+            return x, -math.inf
+        r = x[i] / x[j]
+        a, b = max(lo_j, lo_i / r), min(hi_j, hi_i / r)
+        if not a < b:
+            return x, -math.inf
+        xj = math.sqrt(a * a + u * (b * b - a * a))
+        x[j], x[i] = xj, r * xj
+        return x, 0.0
+
+
 TARGET_ACCEPTANCE = 0.44   # warm-up adapts random-walk widths towards this (1-D optimum, Roberts & Rosenthal)
 
 

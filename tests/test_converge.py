@@ -51,7 +51,7 @@ def test_default_moves_bring_every_chain_off_the_at_rest_plateau(frozen):
     ratio = mine.derived_posterior()["mass_ratio"]
     assert ratio["q05"] < truth[0] / truth[2] < ratio["q95"]
     acc = mine.diagnostics()["acceptance"]
-    assert {"k1_from_acceleration_move", "mass_product_move", "mass_ratio_move"} <= set(acc)
+    assert {"k1_from_acceleration_move", "mass_ray_move", "mass_ratio_move"} <= set(acc)
 
 
 def test_result_json_says_whether_and_why_not_converged(frozen, tmp_path):

@@ -354,7 +354,7 @@ def test_save_writes_documented_result_and_npz(small_result: InferenceResult, tm
     for k in ("r_hat", "ess", "ess_tail"):
         assert set(diag[k]) == set(LATENT_NAMES), k
     assert set(diag["acceptance"]) == set(LATENT_NAMES) | {
-        "k1_from_acceleration_move", "mass_product_move", "mass_ratio_move", "joint_rw_move"}
+        "k1_from_acceleration_move", "mass_ray_move", "mass_ratio_move", "joint_rw_move"}
     for j, n in enumerate(LATENT_NAMES):
         sel = res.proposals["site"] == j
         assert diag["acceptance"][n] == pytest.approx(res.proposals["accepted"][sel].mean())

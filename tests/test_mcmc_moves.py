@@ -179,3 +179,31 @@ def test_joint_random_walk_learns_a_correlation_and_fails_without_its_jacobian()
         out.append(state.position.copy())
     bad = np.array(out)[1000::5]
     assert stats.kstest(np.log(bad[:, 0]), stats.norm(math.log(0.3), 0.2).cdf).pvalue < 1e-6
+
+
+def test_ray_move_samples_the_ridge_in_one_step_and_fails_with_a_uniform_draw():
+    """Along the ray the uniform box prior's conditional is proportional to m2: the move's
+    exactness rests on drawing from it (a uniform draw along the ray, the negative control,
+    over-weights small masses)."""
+    from galileo.mcmc import RayMove
+
+    bounds = [(LO, HI), (LO, HI)]
+    truth = _ridge_truth()
+    ray = RayMove((0, 1), ((LO, HI), (LO, HI)))
+    good = _chain(_ratio_logdensity, [0.9, 0.6], bounds, [ray, LogScale((0, 1), (1.0, -1.0), 0.15)])
+    assert stats.ks_2samp(good[:, 0], truth[:, 0]).pvalue > 1e-3
+    assert stats.ks_2samp(good[:, 1], truth[:, 1]).pvalue > 1e-3
+
+    class UniformRay(RayMove):
+        def propose(self, rng, position):
+            x = np.asarray(position, float).copy()
+            u = rng.uniform()
+            r = x[0] / x[1]
+            a, b = max(LO, LO / r), min(HI, HI / r)
+            x[1] = a + u * (b - a)
+            x[0] = r * x[1]
+            return x, 0.0
+
+    bad = _chain(_ratio_logdensity, [0.9, 0.6], bounds,
+                 [UniformRay((0, 1), ((LO, HI), (LO, HI))), LogScale((0, 1), (1.0, -1.0), 0.15)])
+    assert stats.ks_2samp(bad[:, 0], truth[:, 0]).pvalue < 1e-6

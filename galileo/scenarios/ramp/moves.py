@@ -10,8 +10,10 @@ Two features of the ramp's posterior defeat single-site random walks (issue 12):
   from a mixture of N(k1_hat, sd) and the prior's uniform (a defensive component, so that
   the move stays useful when the estimate is off), the other latents unchanged.
 * the mass-ratio ridge: a collision identifies m1 / m2, not the masses, so the posterior
-  of (m1, m2) lies along a ray from the origin. `LogScale` moves change the product at a
-  fixed ratio (along the ridge) and the ratio at a fixed product (across it).
+  of (m1, m2) lies along a ray from the origin. `RayMove` redraws the masses along their
+  ray from the uniform prior's own conditional there (at a fixed ratio: always accepted when
+  only the ratio matters, and exact either way), and a `LogScale` move changes the ratio at a
+  fixed product (across the ridge).
 """
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ from typing import Sequence
 import numpy as np
 
 from ...datatypes import Tracks
-from ...mcmc import LogScale, SiteMixture
+from ...mcmc import LogScale, RayMove, SiteMixture
 from .scene import Scene
 
 K1_SD_MIN = 0.01        # the k1 proposal's normal is never narrower than this
@@ -29,8 +31,7 @@ K1_SD_SE = 3.0          # ... and at least this many standard errors of the esti
 K1_WEIGHT = 0.5         # the share of proposals from the normal (the rest: the prior's uniform)
 ON_RAMP_MARGIN_M = 0.05  # frames whose centre is this far up the slope from the foot count as the ramp phase
 MIN_FRAMES = 4
-PRODUCT_WIDTH = 0.5     # initial log-space widths of the mass moves (adapted in warm-up)
-RATIO_WIDTH = 0.2
+RATIO_WIDTH = 0.2       # initial log-space width of the mass-ratio move (adapted in warm-up)
 
 
 def k1_from_acceleration(scene: Scene, tracks: Tracks) -> tuple[float, float] | None:
@@ -78,6 +79,7 @@ def ramp_moves(scene: Scene, tracks: Tracks, names: Sequence[str], bounds: np.nd
         moves.append(k1_move(scene, tracks, names.index("k1"), bounds))
     if "m1_kg" in names and "m2_kg" in names:
         pair = (names.index("m1_kg"), names.index("m2_kg"))
-        moves.append(LogScale(pair, (1.0, 1.0), PRODUCT_WIDTH, name="mass_product"))
+        box = tuple(tuple(float(v) for v in bounds[k]) for k in pair)
+        moves.append(RayMove(pair, box, name="mass_ray"))
         moves.append(LogScale(pair, (1.0, -1.0), RATIO_WIDTH, name="mass_ratio"))
     return tuple(moves)
