@@ -203,12 +203,62 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     protocol = registry.get(scenario).protocol
     cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
                     sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps,
-                    seed=args.seed, workers=args.workers)
+                    seed=args.seed, workers=args.workers, moves=args.moves)
     cfg.check()
     report = run_experiments(args.dataset, cfg, progress=not args.quiet, out=args.out)
     summary = dict(report["summary"])
     summary.pop("k1_errors", None)
     print(json.dumps(summary, indent=1))
+    return 0
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from . import registry
+    from .calibrate import coverage_on_videos, sbc
+
+    registry.get(args.scenario)   # an unknown scenario fails here, with the known ones named
+    for what, v, lo in (("--chains", args.chains, 1), ("--sweeps", args.sweeps, 1), ("--draws", args.draws, 1),
+                        ("--workers", args.workers, 1), ("--seed", args.seed, 0)):
+        if v is not None and v < lo:
+            raise GalileoError(f"{what} must be at least {lo}, got {v}")
+    if args.max_sweeps is not None and args.until_rhat is None:
+        raise GalileoError("--max-sweeps is the budget of --until-rhat; without it, use --sweeps")
+    common = dict(seed=args.seed, chains=args.chains, sweeps=args.sweeps, workers=args.workers, moves=args.moves,
+                  until_rhat=args.until_rhat, max_sweeps=args.max_sweeps, progress=not args.quiet)
+    if args.videos is not None:
+        if args.n is not None:
+            raise GalileoError("give either --n N (simulations) or --videos DIR (a rendered dataset), not both")
+        if not Path(args.videos).is_dir():
+            raise GalileoError(f"--videos: dataset folder not found: {args.videos}")
+        report = coverage_on_videos(args.videos, args.out, **common)
+        for k, c in report["coverage"].items():
+            parts = [f"{float(a):.0%}: " + ("n/a" if c[a]["coverage"] is None else
+                                            f"{c[a]['coverage']:.0%} ({c[a]['covered']}/{c[a]['n']})") for a in c]
+            print(f"{k}: coverage " + ", ".join(parts))
+        if report["failed"]:
+            print(f"failed: {len(report['failed'])} video(s): " + "; ".join(f"{f['name']}: {f['error']}"
+                                                                            for f in report["failed"]))
+    else:
+        if args.n is None:
+            raise GalileoError("give --n N (simulations from the prior) or --videos DIR (a rendered dataset)")
+        if args.n < 1:
+            raise GalileoError(f"--n must be at least 1, got {args.n}")
+        scene, scenes = None, args.scenes
+        if scenes not in ("default", "dataset"):
+            scene = registry.load_scene(scenes)   # a scene file: every simulation in that scene
+            if scene.scenario != args.scenario:
+                raise GalileoError(f"--scenes {scenes}: a {scene.scenario} scene, not {args.scenario}")
+        report = sbc(args.scenario, args.n, args.out, draws=args.draws, scenes=scenes, scene=scene, **common)
+        for k, q in report["quantities"].items():
+            cov = q["coverage"]
+            print(f"{k}: uniformity p = {q['p_value']:.3g} (chi2 {q['p_chi2']:.3g}); coverage 50%: "
+                  f"{cov['0.5']['coverage']:.0%}, 90%: {cov['0.9']['coverage']:.0%} (n = {q['n']})"
+                  if q["p_value"] is not None and q["p_chi2"] is not None else f"{k}: n = {q['n']}, too few to test")
+        if report["converged_share"] is not None:
+            print(f"converged: {report['converged_share']:.0%} of the simulations")
+        if report["failed"]:
+            print(f"failed: {len(report['failed'])} simulation(s) (see sbc.json)")
+    print(f"wrote {', '.join(report['files'])} ({report['wall_s']:.0f} s)")
     return 0
 
 
@@ -411,9 +461,33 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--sweeps", type=int, default=None, help="sweeps per chain (default: 75)")
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--workers", type=int, default=None)
+    e.add_argument("--moves", choices=["default", "paper"], default="default",
+                   help="move set of every video's chains (see galileo infer; paper: Galileo section 3.2 exactly)")
     e.add_argument("--out", required=True, help="report JSON (rewritten after every video)")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=cmd_experiment)
+
+    cb = sub.add_parser("calibrate", help="simulation-based calibration (rank histograms, ECDF tests, interval "
+                        "coverage) on simulated observations, or interval coverage on a rendered dataset")
+    cb.add_argument("--scenario", default="ramp", help="scenario (default ramp)")
+    cb.add_argument("--n", type=int, default=None, help="simulations from the prior (SBC)")
+    cb.add_argument("--videos", metavar="DIR", default=None,
+                    help="instead: interval coverage on this rendered dataset (folder from `galileo dataset`)")
+    cb.add_argument("--out", required=True, help="output folder (sbc.json, sbc.md, PNGs; or coverage.json, .md)")
+    cb.add_argument("--seed", type=int, default=0)
+    cb.add_argument("--chains", type=int, default=4, help="chains per simulation or video (default 4)")
+    cb.add_argument("--sweeps", type=int, default=200, help="sweeps per chain (default 200; the first half is "
+                    "warm-up and burn-in)")
+    cb.add_argument("--until-rhat", type=float, default=None, metavar="R",
+                    help="run each inference on until R-hat <= R and ESS >= the ranked draws (or --max-sweeps)")
+    cb.add_argument("--max-sweeps", type=int, default=None, help="the sweep budget of --until-rhat")
+    cb.add_argument("--moves", choices=["default", "paper"], default="default")
+    cb.add_argument("--draws", type=int, default=99, help="posterior draws the truth is ranked among (default 99)")
+    cb.add_argument("--scenes", default="default", metavar="default|dataset|FILE",
+                    help="the scenario's default scene, random scenes like its dataset's, or a scene file")
+    cb.add_argument("--workers", type=int, default=None, help="processes, one simulation each (default: all cores)")
+    cb.add_argument("--quiet", action="store_true", help="no progress bar")
+    cb.set_defaults(func=cmd_calibrate)
 
     r = sub.add_parser("recognize", help="the recognition model (Galileo section 4): mass and friction from one "
                        "frame, trained on Galileo's own inferences")

@@ -3,7 +3,8 @@
 For every video in which something moves: track, infer (the paper protocol by default),
 and compare with ground truth:
 
-* friction: |k1_MAP - k1_true| for the ramp object;
+* friction: |k1_MAP - k1_true| for the ramp object (and, beside it, the error of the
+  posterior median, and whether the 90% interval of k1 holds the truth);
 * which is heavier (6.2): in collision videos, is m1/m2 on the right side of 1 (scored
   where the true ratio is >= 2 or <= 0.5, as in the easy/moderate cases);
 * will it move (6.3): from the fit of an object's 20 degree video, predict whether it
@@ -47,7 +48,13 @@ def run_video(folder: Path, config: RunConfig, executor=None) -> dict:
         return rec  # nothing to track (the tracker refuses a still video)
     tracks = track(folder / "video.mp4", scene, progress=False)
     res = infer(scene, tracks, config, executor=executor, progress=False)
-    rec.update({"map": res.map, "mass_ratio": res.mass_ratio(), "seconds": res.timing_s["wall"],
+    post = res.posterior()
+    derived = res.derived_posterior()
+    rec.update({"map": res.map, "map_loglik": res.map_loglik, "mass_ratio": res.mass_ratio(),
+                "posterior": {k: {q: v[q] for q in ("q05", "q50", "q95")} for k, v in post.items()},
+                "posterior_log_mass_ratio": ({q: derived["log_mass_ratio"][q] for q in ("q05", "q50", "q95")}
+                                             if "log_mass_ratio" in derived else None),
+                "converged": res.convergence()["converged"], "seconds": res.timing_s["wall"],
                 "shape_found": tracks.objects[0].shape.type, "offset_found": tracks.objects[0].offset_units})
     if res.scene.target is not None:
         # did the objects touch? (otherwise the video says nothing about the masses)
@@ -79,12 +86,18 @@ def will_it_move(records: list[dict], folder: Path) -> list[dict]:
 def summarise(records: list[dict], wim: list[dict]) -> dict:
     fitted = [r for r in records if "map" in r]
     k_err = [abs(r["map"]["k1"] - r["truth"]["k1"]) for r in fitted]
+    with_post = [r for r in fitted if "posterior" in r]
+    k_err_med = [abs(r["posterior"]["k1"]["q50"] - r["truth"]["k1"]) for r in with_post]
+    k_cover = [r["posterior"]["k1"]["q05"] <= r["truth"]["k1"] <= r["posterior"]["k1"]["q95"] for r in with_post]
     heavy = [r for r in fitted if r.get("collision") and r.get("mass_ratio")
              and (r["truth"]["m1_kg"] / r["truth"]["m2_kg"] >= 2 or r["truth"]["m1_kg"] / r["truth"]["m2_kg"] <= 0.5)]
     heavy_ok = [(r["mass_ratio"] > 1) == (r["truth"]["m1_kg"] > r["truth"]["m2_kg"]) for r in heavy]
     return {"videos": len(records), "fitted": len(fitted),
             "k1_median_abs_error": float(np.median(k_err)) if k_err else None,
             "k1_errors": k_err,
+            "k1_median_abs_error_posterior_median": float(np.median(k_err_med)) if k_err_med else None,
+            "k1_coverage_90": float(np.mean(k_cover)) if k_cover else None,
+            "converged": int(sum(bool(r.get("converged")) for r in fitted)),
             "which_is_heavier": {"scored": len(heavy), "right": int(sum(heavy_ok)),
                                  "accuracy": float(np.mean(heavy_ok)) if heavy_ok else None},
             "will_it_move": {"scored": len(wim), "right": int(sum(w["predicted_moves"] == w["true_moves"] for w in wim)),
