@@ -4,6 +4,7 @@
     python app.py --scenario splash                # the splash demo: an object dropped into a tank of water
     python app.py --video V.mp4 --scene S.json     # your own video and its scene/camera file
     python app.py --session sessions/<name>        # reopen a recorded session (scrub it; resume its chains)
+    python app.py --until-rhat 1.01 [--min-ess 400 --max-sweeps 1500]   # run on until every latent converged
 
 Tracks the video, starts the MCMC chains in background worker processes, serves the viewer
 (viser) on http://127.0.0.1:8080 and records the session under sessions/<timestamp>-<name>/.
@@ -66,6 +67,15 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--chains", type=int, default=None,
                    help="chains to start (default: the demo's, ramp 16, splash 50)")
     p.add_argument("--sweeps", type=int, default=75, help="sweeps per chain before it pauses (resume to go on)")
+    p.add_argument("--moves", choices=["default", "paper"], default=None,
+                   help="default: widths adapted in a warm-up (the first half of --sweeps) plus the scenario's exact "
+                        "joint moves; paper: Galileo section 3.2 exactly (a new session; default: default)")
+    p.add_argument("--until-rhat", type=float, default=None, metavar="R",
+                   help="after --sweeps, run on until every latent's R-hat <= R and its bulk and tail ESS >= "
+                        "--min-ess (e.g. 1.01), or until --max-sweeps; then pause")
+    p.add_argument("--min-ess", type=float, default=None, help="the ESS --until-rhat needs per latent (default 400)")
+    p.add_argument("--max-sweeps", type=int, default=None,
+                   help="the sweep budget of --until-rhat (default: 20 x --sweeps)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
     p.add_argument("--name", help="session name (default: the video's name; demo / splash-demo)")
@@ -74,6 +84,17 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "first frame (Galileo Fig. 4)")
     p.add_argument("--model", help="recognition model for --init recognition (default: the built-in ramp model)")
     args = p.parse_args(argv)
+    if args.sweeps < 1:
+        p.error(f"--sweeps must be >= 1, got {args.sweeps}")
+    if args.until_rhat is not None and not args.until_rhat > 1.0:
+        p.error(f"--until-rhat must be above 1 (e.g. 1.01), got {args.until_rhat:g}")
+    if args.min_ess is not None and not args.min_ess >= 0:
+        p.error(f"--min-ess must be >= 0, got {args.min_ess:g}")
+    if args.max_sweeps is not None:
+        if args.until_rhat is None:
+            p.error("--max-sweeps is the budget of --until-rhat; without it, use --sweeps")
+        if args.max_sweeps < args.sweeps:
+            p.error(f"--max-sweeps must be >= --sweeps ({args.sweeps}), got {args.max_sweeps}")
     if args.chains is None:
         from galileo import registry
 
@@ -105,7 +126,7 @@ def run(args) -> int:
 
     from galileo.errors import GalileoError
     from galileo import registry
-    from galileo.results import burn_in
+    from galileo.results import MIN_ESS, burn_in
     from galileo.video import read_video
     from ui.controller import Controller
     from ui.rerun_log import RRD_NAME, RerunLogger
@@ -116,6 +137,9 @@ def run(args) -> int:
     model = None
     if args.session and (args.init != "prior" or args.model):
         raise GalileoError("--init and --model start a new session's chains; a reopened session keeps its own")
+    if args.session and args.moves:
+        raise GalileoError("--moves starts a new session's chains; a reopened session keeps its own")
+    min_ess = MIN_ESS if args.min_ess is None else args.min_ess
     if args.model and args.init != "recognition":
         raise GalileoError("--model is for --init recognition")
     if args.init == "recognition":   # before tracking: a bad model file fails fast
@@ -124,7 +148,9 @@ def run(args) -> int:
         model = load_model(args.model, registry.load_scene(args.scene).scenario if args.scene else args.scenario)
     if args.session:
         session = Path(args.session)
-        ctrl = Controller.load(session, workers=args.workers)
+        ctrl = Controller.load(session, workers=args.workers, sweeps=args.sweeps)
+        if args.until_rhat is not None:   # held chains go on at once when the verdict says so
+            ctrl.run_until(args.until_rhat, min_ess, args.max_sweeps)
         scene, tracks = ctrl.scene, ctrl.tracks
         video_path = session / "video.mp4"
         if not video_path.exists():
@@ -152,8 +178,12 @@ def run(args) -> int:
             from galileo.recognition.model import recognition_init
 
             init = recognition_init(model, video_path, scene, tracks, source=str(args.model or "built-in"))
-        ctrl = Controller(scene, tracks, chains=args.chains, seed=args.seed, workers=args.workers,
-                          session_dir=session, init=init)
+        try:
+            ctrl = Controller(scene, tracks, chains=args.chains, seed=args.seed, workers=args.workers,
+                              session_dir=session, init=init, moves=args.moves or "default", sweeps=args.sweeps,
+                              until_rhat=args.until_rhat, min_ess=min_ess, max_sweeps=args.max_sweeps)
+        except ValueError as e:
+            raise GalileoError(str(e)) from None
     video, _ = read_video(video_path)
     old_rrd = session / RRD_NAME
     if mode != "off" and old_rrd.exists():  # keep the earlier run's recording
@@ -170,20 +200,25 @@ def run(args) -> int:
     names = ctrl.names
     posterior_every = max(1, len(ctrl.chain_ids()))
 
+    def log_convergence(sweep):
+        conv = ctrl.status()["convergence"]
+        logger.log_convergence(sweep, conv["r_hat"], conv["converged"])
+
     def on_controller(kind, payload):
+        # (each chain pauses at its --sweeps itself, the paper's protocol; Resume or --until-rhat go on)
         if kind == "sweeps":
-            active = set(ctrl.chain_ids())
             for chain, sweep, loglik, values in payload["results"]:
                 logger.log_sweep(chain, sweep, loglik, values)
-                if sweep == args.sweeps and chain in active:
-                    ctrl.pause(chain)  # the paper's protocol: 75 sweeps a chain; resume to go on
             if payload["round"] % posterior_every == 0:
                 samples = [ctrl.samples(c) for c in ctrl.chain_ids()]
-                kept = [s[burn_in(len(s)):] for s in samples if len(s)]
-                if kept:
+                kept = [s[burn_in(len(s), ctrl.warmup):] for s in samples if len(s)]
+                if kept and sum(len(k) for k in kept):
                     logger.log_posterior(names, np.concatenate(kept), ctrl.settings.bounds)
+                log_convergence(payload["round"])
         elif kind == "event":
             logger.log_event(payload["sweep"], f"{payload['kind']}: {payload['detail']}")
+            if payload["kind"] == "until_check":
+                log_convergence(payload["sweep"])
     ctrl.add_listener(on_controller)
 
     viewer = Viewer(ctrl, ctrl.likelihood_scene, tracks, video, host=args.host, port=args.port,

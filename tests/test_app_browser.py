@@ -1,6 +1,7 @@
-"""One real-browser test: headless Chromium (Debian's, driven by Playwright) loads the
-viewer, the viser client connects, the sample slider is moved in the page, and the server
-re-simulates and poses the objects differently."""
+"""Real-browser tests: headless Chromium (Debian's, driven by Playwright) loads the viewer,
+the viser client connects, the sample slider is moved in the page, and the server
+re-simulates and poses the objects differently; the Chains panel shows each latent's
+converged / not converged state, coloured, and the mass ratio's posterior."""
 import shutil
 import time
 from pathlib import Path
@@ -8,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import demo_viewer
+from conftest import demo_viewer, free_port, load_demo_frozen
 
 CHROMIUM = "/usr/bin/chromium"
 pytestmark = pytest.mark.skipif(not Path(CHROMIUM).exists() or shutil.which("chromium") is None,
@@ -72,5 +73,65 @@ def test_browser_scrubs_samples_and_the_scene_changes(viewer):
             sel = viewer.selection.index
             assert not np.array_equal(samples[before_sel], samples[sel])
             assert np.abs(ends[sel] - ends[before_sel]).max() > 1e-6, "the scene did not change"
+        finally:
+            browser.close()
+
+
+def launch(p):
+    return p.chromium.launch(
+        executable_path=CHROMIUM, headless=True,
+        args=["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+              "--disable-sync", "--no-first-run", "--disable-quic"])
+
+
+@pytest.fixture(scope="module")
+def kept_viewer(demo_dir, tmp_path_factory):
+    """12 sweeps of 2 chains after a 2-sweep warm-up: kept draws enough for R-hat and the ratio."""
+    from galileo.video import read_video
+    from ui.controller import Controller
+    from ui.viewer import Viewer
+
+    scene, tracks, _ = load_demo_frozen()
+    ctrl = Controller(scene, tracks, chains=2, seed=0, workers=1, warmup=2, sweeps=12,
+                      session_dir=tmp_path_factory.mktemp("kept"))
+    ctrl.run_sweeps(12)
+    video, _ = read_video(demo_dir / "video.mp4")
+    v = Viewer(ctrl, ctrl.likelihood_scene, tracks, video, port=free_port())
+    yield v
+    v.close()
+    ctrl.close()
+
+
+def test_browser_shows_each_latents_convergence_state_and_the_ratio(kept_viewer):
+    from playwright.sync_api import sync_playwright
+
+    v = kept_viewer
+    st = v.ctrl.status()
+    conv = st["convergence"]
+    assert not conv["converged"] and all(r is not None for r in conv["r_hat"].values())
+    with sync_playwright() as p:
+        browser = launch(p)
+        try:
+            page = browser.new_page(viewport={"width": 1024, "height": 900})
+            page.goto(v.url)
+            verdict = page.locator(".galileo-verdict")
+            verdict.wait_for(timeout=30000)
+            assert verdict.inner_text().startswith("Not converged:")
+            assert "rgb(201, 42, 42)" == verdict.evaluate("e => getComputedStyle(e).color")
+            for name in v.ctrl.names:
+                row = page.locator(f'.galileo-latent[data-latent="{name}"]')
+                text = row.inner_text()
+                r = conv["r_hat"][name]
+                assert text.startswith(f"{name} R-hat {r:.3f}")
+                assert ("converged" if conv["per_latent"][name] else "not converged: ") in text
+                want = "rgb(43, 138, 62)" if conv["per_latent"][name] else (
+                    "rgb(201, 42, 42)" if r > conv["rhat_target"] else "rgb(232, 89, 12)")
+                assert row.evaluate("e => getComputedStyle(e).color") == want
+            ratio = page.locator(".galileo-derived").first.inner_text()
+            assert ratio.startswith("mass_ratio: median ") and "(90% " in ratio
+            assert f"{st['derived']['mass_ratio']['q50']:.3g}" in ratio
+            # the progress bar: 12 of 12 sweeps done, but not converged: not full
+            bar = page.get_by_role("progressbar").first
+            assert float(bar.get_attribute("aria-valuenow")) < 100
         finally:
             browser.close()

@@ -97,6 +97,20 @@ def test_command_line_picks_the_demo_and_its_chains():
     assert e.value.code == 2
 
 
+def test_command_line_moves_and_run_until_converged(capsys):
+    args = app.parse_args([])
+    assert args.moves is None and args.until_rhat is None and args.min_ess is None and args.max_sweeps is None
+    args = app.parse_args(["--moves", "paper", "--until-rhat", "1.01", "--min-ess", "100", "--max-sweeps", "300"])
+    assert (args.moves, args.until_rhat, args.min_ess, args.max_sweeps) == ("paper", 1.01, 100.0, 300)
+    for bad, why in ((["--moves", "fancy"], "invalid choice"), (["--until-rhat", "0.99"], "above 1"),
+                     (["--max-sweeps", "500"], "budget of --until-rhat"),
+                     (["--until-rhat", "1.01", "--max-sweeps", "50"], "--max-sweeps must be >= --sweeps"),
+                     (["--until-rhat", "1.01", "--min-ess", "-1"], "--min-ess")):
+        with pytest.raises(SystemExit) as e:
+            app.parse_args(bad)
+        assert e.value.code == 2 and why in capsys.readouterr().err
+
+
 def test_steering_keeps_widths_and_integer_latents_valid(splash_viewer):
     ctrl, _ = splash_viewer
     with pytest.raises(ValueError, match="2 widths for 4 latents"):

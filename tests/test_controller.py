@@ -52,14 +52,19 @@ def same_chains(a: Controller, b: Controller, ids=None):
         assert np.array_equal(a.samples(c), b.samples(c)), c
         assert np.array_equal(a.logliks(c), b.logliks(c)), c
         pa, pb = a.proposals(c), b.proposals(c)
-        for k in ("site", "proposal", "accepted", "early_stop", "width"):
-            assert np.array_equal(pa[k], pb[k]), (c, k)
+        for k in ("site", "proposal", "accepted", "early_stop", "width"):   # (a joint move's width: NaN)
+            assert np.array_equal(pa[k], pb[k], equal_nan=k == "width"), (c, k)
+        assert np.array_equal(a.sample_noise(c), b.sample_noise(c)), c
 
 
 # -- running ---------------------------------------------------------------------------------------------
 
 def test_run_sweeps_grows_samples_and_map_is_the_best_sample(make):
+    from galileo.runner import default_moves
+
     ctl = make(chains=2, seed=0)
+    joint = [m.name for m in default_moves(ctl.scenario, ctl.likelihood_scene, ctl.tracks, ctl.latents,
+                                           ctl.settings.bounds_array(NAMES), ctl.settings)]
     assert ctl.names == NAMES and ctl.chain_ids() == [0, 1] and ctl.map() is None
     assert ctl.samples(0).shape == (0, 4) and ctl.logliks(0).shape == (0,)
     ctl.run_sweeps(3)
@@ -69,13 +74,17 @@ def test_run_sweeps_grows_samples_and_map_is_the_best_sample(make):
         s, ll = ctl.samples(c), ctl.logliks(c)
         assert s.shape == (5, 4) and ll.shape == (5,) and np.all(np.isfinite(ll))
         assert ctl.sample(c, 4) == dict(zip(NAMES, s[4].tolist()))
-        assert len(ctl.proposals(c)["site"]) == 5 * 4
+        # one proposal a latent and one a joint move (the ramp's k1 and mass moves, the joint walk) per sweep
+        assert len(ctl.proposals(c)["site"]) == 5 * (4 + len(joint))
     all_ll = np.stack([ctl.logliks(c) for c in (0, 1)])
     c, i, values, ll = ctl.map()
     assert ll == all_ll.max() and (c, i) == np.unravel_index(np.argmax(all_ll), all_ll.shape)
     assert values == ctl.sample(c, i)
     st = ctl.status()
-    assert st["rounds"] == 5 and st["sweeps"] == 10 and st["proposals"] == 40
+    assert st["rounds"] == 5 and st["sweeps"] == 10 and st["proposals"] == 10 * (4 + len(joint))
+    assert st["moves"]["set"] == "default" and st["moves"]["warmup"] == 37 and st["moves"]["adapting"]
+    assert st["moves"]["joint"] == joint and "k1_from_acceleration" in joint
+    assert all(0 <= v <= 1 for v in st["moves"]["acceptance"].values())
     assert set(st["chains"]) == {0, 1} and st["chains"][0]["sweeps"] == 5
     assert st["chains"][1]["loglik"] == ctl.logliks(1)[-1] and st["chains"][0]["state"] == "running"
     assert st["chains"][0]["running"] and not st["chains"][0]["paused"]
@@ -93,25 +102,76 @@ def test_same_seed_same_chains_for_one_and_two_workers(make):
     assert one.map() == two.map()
 
 
-def test_chains_equal_the_batch_runner(demo, make):
-    """Same kernel, same streams, same starts: the batch runner's chains bit for bit."""
-    res = infer(*demo, InferenceConfig(chains=2, sweeps=4, seed=3, workers=1), progress=False)
-    ctl = make(chains=2, seed=3, workers=2)
-    ctl.run_sweeps(4)
-    for c in range(2):
+def assert_batch_chains(ctl, res):
+    for c in range(res.samples.shape[0]):
         assert np.array_equal(ctl.samples(c), res.samples[c])
         assert np.array_equal(ctl.logliks(c), res.logliks[c])
         p = ctl.proposals(c)
         for k in ("site", "proposal", "accepted", "early_stop", "proposal_loglik"):
             assert np.array_equal(p[k], res.proposals[k][c]), k
+        assert np.array_equal(p["width"], res.proposals["width"][c], equal_nan=True)
     c, i, values, ll = ctl.map()
     assert (c, i) == res.map_index and values == res.map and ll == res.map_loglik
+
+
+@pytest.mark.parametrize("moves", ["default", "paper"])
+def test_chains_equal_the_batch_runner(demo, make, moves):
+    """Same kernel, same streams, same starts, the same warm-up adaptation and joint moves
+    (default) or the paper's kernel: the batch runner's chains bit for bit."""
+    res = infer(*demo, InferenceConfig(chains=2, sweeps=4, seed=3, workers=1, moves=moves), progress=False)
+    ctl = make(chains=2, seed=3, workers=2, moves=moves, sweeps=4)
+    assert ctl.run_sweeps(6) == 4           # each chain pauses at its 4 sweeps
+    assert_batch_chains(ctl, res)
+    assert [e["kind"] for e in ctl.events] == ["init", "pause"]
+    assert ctl.events[-1]["detail"] == {"chains": [0, 1], "reason": "sweep target 4"}
+    st = ctl.status()
+    assert all(ch["held"] and ch["paused"] for ch in st["chains"].values())
+    if moves == "default":   # the widths each chain adapted in its 2 warm-up sweeps, as the batch runner's
+        assert ctl.warmup == res.warmup == 2
+        assert [list(ctl.proposal_state(c)[0].narrow) for c in range(2)] == res.moves["adapted"]["narrow"]
+        assert (res.proposals["site"] < 0).any()
+    else:
+        assert ctl.warmup == res.warmup == 0 and ctl.proposal_state(0) == (ctl.settings.proposal(), ())
+        assert (res.proposals["site"] >= 0).all()
+
+
+def test_run_until_converged_equals_the_batch_runner(demo, make):
+    """--until-rhat in the app: held at the sweep target, checked, run on in the batch runner's
+    blocks until the budget (4 sweeps, then 2 more: never converged this short) and the
+    same chains as `galileo infer --until-rhat` bit for bit."""
+    cfg = InferenceConfig(chains=2, sweeps=4, seed=3, workers=1, until_rhat=1.01, max_sweeps=6)
+    res = infer(*demo, cfg, progress=False)
+    ctl = make(chains=2, seed=3, workers=1, sweeps=4, until_rhat=1.01, max_sweeps=6)
+    assert ctl.run_sweeps(10) == 6
+    assert res.samples.shape[1] == 6
+    assert_batch_chains(ctl, res)
+    checks = [e for e in ctl.events if e["kind"] == "until_check"]
+    assert [c["detail"]["sweeps"] for c in checks] == [4, 6]
+    assert checks[0]["detail"]["target"] == 6 and checks[0]["detail"]["resumed"] == [0, 1]
+    assert not checks[1]["detail"]["converged"] and "budget" in checks[1]["detail"]["outcome"]
+    st = ctl.status()
+    assert st["until"] == {"until_rhat": 1.01, "min_ess": 400.0, "max_sweeps": 6} and st["target_sweeps"] == 6
+    assert not st["convergence"]["converged"] and st["convergence"]["why_not"]
+    assert st["convergence"]["why_not"] == res.convergence()["why_not"]
+    # turned on later (a reopened session, or the app's button): a verdict at once, then blocks (the
+    # warm-up is chosen at the start: with until_rhat galileo infer's is all of these 4 sweeps)
+    assert ctl.warmup == res.warmup == 4
+    later = make(chains=2, seed=3, workers=1, sweeps=4, warmup=4)
+    later.run_sweeps(4)
+    later.run_until(1.01, max_sweeps=6)
+    assert later.events[-1]["kind"] == "until_check" and later.events[-1]["detail"]["target"] == 6
+    assert later.run_sweeps(5) == 2
+    same_chains(ctl, later)
+    with pytest.raises(ValueError, match="until_rhat"):
+        later.run_until(0.9)
+    with pytest.raises(ValueError, match="max_sweeps"):
+        later.run_until(1.01, max_sweeps=2)
 
 
 # -- steering -----------------------------------------------------------------------------------------------
 
 def test_pause_resume_add_and_remove_chains(demo, make):
-    ctl = make(chains=2, seed=1, workers=2)
+    ctl = make(chains=2, seed=1, workers=2, warmup=1)
     ctl.run_sweeps(2)
     ctl.pause(0)
     ctl.run_sweeps(2)
@@ -153,7 +213,7 @@ def test_pause_resume_add_and_remove_chains(demo, make):
 
 
 def test_reset_chain_and_set_chain(make):
-    ctl = make(chains=2, seed=2)
+    ctl = make(chains=2, seed=2, moves="paper")
     ctl.run_sweeps(3)
     c_map, i_map, map_values, _ = ctl.map()
     other = 1 - c_map
@@ -198,7 +258,7 @@ def test_set_sigma_applies_from_the_next_sweep(demo, make):
 
 
 def test_set_bounds_pulls_chains_inside_and_set_widths(make):
-    ctl = make(chains=2, seed=0)
+    ctl = make(chains=2, seed=0, moves="paper")
     ctl.run_sweeps(2)
     k1 = [ctl.position(c)["k1"] for c in (0, 1)]
     lo, hi = 0.05, min(k1) - 0.01          # both chains now lie above the new bound
@@ -230,6 +290,91 @@ def test_set_bounds_pulls_chains_inside_and_set_widths(make):
     assert [e["kind"] for e in ctl.events] == ["init", "bounds", "widths"]
 
 
+def narrow_of(ctl, c):
+    return ctl.proposal_state(c)[0].narrow
+
+
+def test_width_edit_replaces_adapted_widths_and_steering_keeps_them(make):
+    """Default moves: each chain adapts its own narrow widths in warm-up; setting or resetting a
+    chain keeps them; a width edit replaces every chain's from that sweep on and ends adaptation."""
+    ctl = make(chains=2, seed=2)
+    ctl.run_sweeps(3)
+    adapted = {c: narrow_of(ctl, c) for c in (0, 1)}
+    assert all(isinstance(w, tuple) and w != (0.05,) * 4 for w in adapted.values()) and adapted[0] != adapted[1]
+    moves = ctl.proposal_state(0)[1]
+    ctl.set_chain(0, {"k1": 0.25})
+    ctl.reset_chain(1, "map")
+    assert {c: narrow_of(ctl, c) for c in (0, 1)} == adapted and ctl.proposal_state(0)[1] == moves
+    ctl.run_sweeps(1)   # sweep 4 uses the kept widths (and adapts them further: warm-up is 37 sweeps)
+    for c in (0, 1):
+        assert np.array_equal(ctl.proposals(c)["width"][-8:-4], adapted[c])
+    assert narrow_of(ctl, 0) != adapted[0]
+
+    ctl.set_widths(0.02, 0.3, 20)
+    ev = ctl.events[-1]
+    assert ev["kind"] == "widths" and "ended" in ev["detail"]["adaptation"]
+    assert set(ev["detail"]["replaced_adapted_narrow"]) == {"0", "1"}
+    ctl.run_sweeps(2)
+    for c in (0, 1):
+        assert np.all(ctl.proposals(c)["width"][-16:][[0, 1, 2, 3, 8, 9, 10, 11]] == 0.02)
+        assert narrow_of(ctl, c) == 0.02     # no longer adapted
+    assert not ctl.status()["moves"]["adapting"]
+    c = ctl.add_chains(1)[0]                 # a later chain uses the user's widths too
+    ctl.run_sweeps(1)
+    assert np.all(ctl.proposals(c)["width"][:4] == 0.02) and narrow_of(ctl, c) == 0.02
+
+
+def test_map_compares_logliks_under_one_sigma(demo, make):
+    """A sigma edit puts every later log-likelihood on another scale: the MAP is the best
+    sample under the sigma in force, never an older sample that merely scored higher under
+    the old one (pending until a sample under the new sigma exists)."""
+    ctl = make(chains=2, seed=0, moves="paper")
+    ctl.run_sweeps(3)
+    old = ctl.map()
+    ctl.set_sigma(0.01)         # a fifth of the noise: every log-likelihood falls far below the old ones
+    assert ctl.map() is None and "MAP pending" in ctl.map_note() and "sigma_mps = 0.01" in ctl.map_note()
+    st = ctl.status()
+    assert st["map"] is None and st["map_note"].startswith("MAP pending")
+    with pytest.raises(ValueError, match="MAP pending"):
+        ctl.reset_chain(0, "map")
+    ctl.run_sweeps(1)
+    c, i, values, ll = ctl.map()
+    assert i == 3 and ll == max(ctl.logliks(k)[3] for k in (0, 1)) == lik_at(demo, 0.01, ctl.samples(c)[i])
+    assert old[3] > ll          # today's rule (the best of all samples) would have kept the old MAP
+    assert ctl.status()["map"]["noise"] == 0.01 and ctl.status()["map_note"] is None
+    assert [list(ctl.sample_noise(k)) for k in (0, 1)] == [[0.05] * 3 + [0.01]] * 2
+    ctl.set_sigma(0.05)         # back: the samples under 0.05 compare again, old and new
+    ctl.run_sweeps(1)
+    under = [(ctl.logliks(k)[j], k, j) for k in (0, 1) for j in range(5) if ctl.sample_noise(k)[j] == 0.05]
+    assert ctl.map()[3] == max(under)[0] and ctl.map()[:2] == max(under)[1:]
+
+
+def test_status_says_whether_each_latent_converged_and_gives_the_ratio(make):
+    """status(): the verdict of galileo.results.convergence on the kept draws (after max(warm-up,
+    half)), per latent and why not, and the mass ratio's posterior on the same draws."""
+    from galileo.results import convergence
+
+    ctl = make(chains=2, seed=1, warmup=2, sweeps=10)
+    st = ctl.status()
+    assert st["convergence"]["converged"] is False and st["derived"] == {}
+    ctl.run_sweeps(10)
+    st = ctl.status()
+    kept = [ctl.samples(c)[5:] for c in (0, 1)]    # burn-in max(2, 10 / 2)
+    want = convergence(kept, NAMES)
+    conv = st["convergence"]
+    assert conv["burn_in"] == 5 and conv["kept_draws"] == 10
+    for k in ("converged", "why_not", "per_latent", "r_hat", "ess_bulk", "ess_tail"):
+        assert conv[k] == want[k], k
+    assert st["r_hat"] == want["r_hat"] and set(conv["per_latent"]) == set(NAMES)
+    assert not conv["converged"] and all(w.split(":")[0] in NAMES for w in conv["why_not"])
+    ratio = np.concatenate([k[:, 0] / k[:, 2] for k in kept])
+    d = st["derived"]["mass_ratio"]
+    assert d["q50"] == pytest.approx(np.median(ratio), rel=1e-12)
+    assert d["q05"] == pytest.approx(np.quantile(ratio, 0.05), rel=1e-12)
+    assert st["derived"]["log_mass_ratio"]["q50"] == pytest.approx(np.median(np.log(ratio)), rel=1e-12)
+    assert ctl.status()["convergence"] == conv     # cached until something changes
+
+
 class GatedPool:
     """An executor (`map`) that runs the tasks in this process once the test opens the gate:
     while it waits, the controller's round is in flight, for certain."""
@@ -248,7 +393,7 @@ def test_steering_during_a_sweep_applies_after_it(demo, make):
     """A change made while a round is in flight does not wait for it, leaves it alone (it
     finishes with the old settings and its result is kept) and applies right after it."""
     pool = GatedPool()
-    ctl = make(chains=3, seed=0, executor=pool)
+    ctl = make(chains=3, seed=0, executor=pool, moves="paper")
     runner = threading.Thread(target=ctl.run_sweeps, args=(1,))
     runner.start()
     try:
@@ -368,7 +513,8 @@ def saved_session(make, tmp_path):
 
 
 @pytest.mark.parametrize("name, damage", [
-    ("record.npz", "truncate"), ("record.npz", "garbage"), ("chains.json", "invalid"),
+    ("record.npz", "truncate"), ("record.npz", "garbage"), ("record.npz", "site"), ("chains.json", "move"),
+    ("chains.json", "widths"), ("events.json", "moves"), ("chains.json", "invalid"),
     ("events.json", "invalid"), ("settings.json", "invalid"), ("scene.json", "invalid"),
     ("tracks.json", "invalid"), ("chains.json", "wrong"), ("settings.json", "wrong"),
     ("scene.json", "wrong"), ("tracks.json", "wrong"), ("events.json", "missing"), ("record.npz", "missing"),
@@ -381,6 +527,20 @@ def test_damaged_session_is_a_one_line_error_naming_the_file(saved_session, tmp_
         path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
     elif damage == "garbage":
         path.write_bytes(b"not a zip file")
+    elif damage == "site":     # a proposal site that is neither a latent nor one of the joint moves
+        with np.load(path) as z:
+            rec = {k: z[k] for k in z.files}
+        rec["c0_site"][1] = -9
+        path.write_bytes(sess.npz_bytes(rec))
+    elif damage in ("move", "widths", "moves"):
+        d = json.loads(path.read_text())
+        if damage == "move":
+            d["chains"][0]["moves"][-1]["chol"] = [[1.0]]
+        elif damage == "widths":
+            d["chains"][0]["proposal"]["narrow"] = [0.1, -1.0, 0.1, 0.1]
+        else:
+            d["events"][0]["detail"]["moves"] = "fancy"
+        path.write_text(json.dumps(d))
     elif damage == "invalid":
         path.write_text(path.read_text()[:-20])
     elif damage == "wrong":
@@ -400,6 +560,50 @@ def test_damaged_session_is_a_one_line_error_naming_the_file(saved_session, tmp_
         Controller.load(folder, workers=1)
     msg = str(e.value)
     assert name in msg and "\n" not in msg and e.value.__cause__ is None
+
+
+def test_a_session_recorded_before_moves_replays_as_the_paper_kernel(make, tmp_path):
+    """A session without a move set, adapted widths or per-sample noise (recorded before them)
+    opens as the paper's kernel, each sample's sigma read from the sigma events, and goes on
+    exactly as it would have."""
+    old = make(chains=2, seed=6, moves="paper", sweeps=None, session_dir=tmp_path / "s")
+    old.run_sweeps(2)
+    old.set_sigma(0.08)
+    old.run_sweeps(1)
+    old.add_chains(1)
+    old.run_sweeps(1)
+    old.close()
+    folder = tmp_path / "s"
+    doc = json.loads((folder / "chains.json").read_text())
+    for k in ("moves", "warmup", "adapt_until", "target_sweeps", "until"):
+        del doc[k]
+    for ch in doc["chains"]:
+        for k in ("held", "proposal", "moves"):
+            del ch[k]
+    (folder / "chains.json").write_text(json.dumps(doc))
+    ev = json.loads((folder / "events.json").read_text())
+    for k in ("moves", "warmup", "joint_moves", "sweeps", "until"):
+        del ev["events"][0]["detail"][k]
+    (folder / "events.json").write_text(json.dumps(ev))
+    with np.load(folder / "record.npz") as z:
+        rec = {k: z[k] for k in z.files if not k.endswith("_noise")}
+    (folder / "record.npz").write_bytes(sess.npz_bytes(rec))
+
+    back = Controller.load(folder, workers=1)
+    try:
+        assert back.status()["moves"]["set"] == "paper" and back.target_sweeps is None
+        assert [list(back.sample_noise(c)) for c in (0, 1, 2)] == [[0.05, 0.05, 0.08, 0.08]] * 2 + [[0.08]]
+        back.run_sweeps(2)
+        whole = make(chains=2, seed=6, moves="paper", sweeps=None)
+        whole.run_sweeps(2)
+        whole.set_sigma(0.08)
+        whole.run_sweeps(1)
+        whole.add_chains(1)
+        whole.run_sweeps(3)
+        same_chains(back, whole)
+        assert back.map() == whole.map()
+    finally:
+        back.close()
 
 
 def test_missing_session_folder(tmp_path):

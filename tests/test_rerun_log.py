@@ -124,6 +124,26 @@ def test_save_sweeps_posterior_event_simulation(tmp_path):
     assert any({"/chains/2/loglik", "/chains/0/k2", "/chains/2/m1_kg"} <= set(q) for q in queries)
 
 
+def test_r_hat_per_latent_when_it_changes(tmp_path):
+    """diagnostics/r_hat/<latent> and diagnostics/converged on the sweep timeline: a latent
+    without an R-hat (warm-up) is left out, an unchanged status is not logged again."""
+    log = RerunLogger("save", session_dir=tmp_path, latents=LATENTS, n_chains=2)
+    log.log_convergence(2, dict.fromkeys(LATENTS), False)                       # warm-up: no R-hat yet
+    log.log_convergence(5, {"m1_kg": 1.31, "k1": 1.02, "m2_kg": 1.25, "k2": None}, False)
+    log.log_convergence(6, {"m1_kg": 1.31, "k1": 1.02, "m2_kg": 1.25, "k2": None}, False)   # unchanged
+    log.log_convergence(9, {"m1_kg": 1.004, "k1": 1.001, "m2_kg": 1.006, "k2": 1.009}, True)
+    log.close()
+    ents = read_rrd(tmp_path / RRD_NAME)
+    rows = {n: [(t, v[0]) for t, v in series(ents, f"diagnostics/r_hat/{n}", "sweep", "Scalars:scalars")]
+            for n in LATENTS}
+    assert rows == {"m1_kg": [(5, 1.31), (9, 1.004)], "k1": [(5, 1.02), (9, 1.001)],
+                    "m2_kg": [(5, 1.25), (9, 1.006)], "k2": [(9, 1.009)]}
+    conv = series(ents, "diagnostics/converged", "sweep", "Scalars:scalars")
+    assert [(t, v[0]) for t, v in conv] == [(2, 0.0), (5, 0.0), (9, 1.0)]
+    queries = blueprint_queries(tmp_path / RRD_NAME)
+    assert len(queries) == 1
+
+
 def test_known_layout_sends_one_blueprint(tmp_path):
     log = RerunLogger("save", session_dir=tmp_path, latents=LATENTS, n_chains=2)
     for sweep in range(3):

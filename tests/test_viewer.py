@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import demo_viewer
+from ui.viewer import CONVERGED_COLOR, ESS_COLOR, RHAT_COLOR, convergence_html
 
 
 @pytest.fixture(scope="module")
@@ -31,6 +32,52 @@ def test_edits_are_marked_on_the_traces(setup):
     assert marks[edit - 1] > others.max() and np.all(others == others[0])
     assert "edits at sweeps" in v.trace_plot.title
     assert "chains" in v.status_text.content and "R-hat" in v.status_text.content
+
+
+def test_chains_panel_says_not_converged_and_the_bar_is_not_full(setup):
+    """5 sweeps of 2 chains (all still in warm-up): every latent is shown not converged, in red,
+    with the reason, and the progress bar neither full nor done."""
+    ctrl, v = setup
+    v.refresh()
+    st = ctrl.status()
+    assert not st["convergence"]["converged"]
+    box = v.convergence_box.content
+    assert "Not converged: 0 of 4 latents" in box
+    for n in ctrl.names:
+        assert f'data-latent="{n}" data-converged="false" style="color:{RHAT_COLOR}"' in box
+    assert box.count("not converged: R-hat cannot be computed") == 4
+    assert v.progress.value < 99.0 and v.progress.color is None
+    assert "not converged yet (sweep target 75)" in v.status_text.content
+    assert "moves: default, widths adapting (warm-up: sweeps 1-37)" in v.status_text.content
+
+
+def test_convergence_html_colours_each_latent_and_shows_derived_quantities():
+    from galileo.results import convergence
+
+    rng = np.random.default_rng(0)
+    names = ("a", "b", "c")
+    mixed = [np.column_stack([rng.normal(size=800), rng.normal(size=800) + 3 * c,
+                              np.cumsum(rng.normal(size=800)) * 0.01 + rng.normal(size=800)]) for c in range(4)]
+    conv = convergence(mixed, names)
+    assert conv["per_latent"] == {"a": True, "b": False, "c": False}
+    derived = {"ratio": {"q05": 0.5, "q50": 1.25, "q95": 2.0}, "log_ratio": {"q05": -0.7, "q50": 0.22, "q95": 0.69},
+               "volume_cm3": {"q05": 10.0, "q50": 12.0, "q95": 14.0}}
+    box = convergence_html(conv, derived)
+    assert "Not converged: 1 of 3 latents (R-hat &le; 1.01, ESS &ge; 400)" in box
+    assert f'data-latent="a" data-converged="true" style="color:{CONVERGED_COLOR}"' in box
+    assert f'data-latent="b" data-converged="false" style="color:{RHAT_COLOR}"' in box
+    assert "<b>a</b> R-hat 1.00" in box and ": converged</div>" in box
+    assert "b</b> R-hat" in box and "not converged: R-hat" in box
+    # R-hat holds but the ESS does not: orange
+    ess_only = {**conv, "per_latent": {"c": False}, "r_hat": {"c": 1.004}, "ess_bulk": {"c": 161.4},
+                "ess_tail": {"c": 2175.0}, "why_not": ["c: ESS 161 < 400"]}
+    line = convergence_html(ess_only, {})
+    assert (f'data-latent="c" data-converged="false" style="color:{ESS_COLOR}"><b>c</b> R-hat 1.004, ESS 161: '
+            "not converged: ESS 161 &lt; 400</div>") in line
+    assert "<b>ratio</b>: median 1.25 (90% 0.5 &ndash; 2)" in box and "log_ratio" not in box
+    assert "<b>volume_cm3</b>: median 12" in box
+    good = convergence([m[:, :1] for m in mixed], names[:1])
+    assert "Converged: all 1 latents" in convergence_html(good, {}) and "Posterior" not in convergence_html(good, {})
 
 
 def sigma_of(ctrl, chain: int, index: int) -> float:

@@ -32,6 +32,24 @@ that they can be watched and steered:
 * With a `session_dir` the state is saved there (see `ui.session`) at most every
   `save_every_s` while rounds run, on `stop()`, `close()` and `save()`; `Controller.load`
   restores it exactly and the chains go on as if never interrupted.
+* Moves (`moves`, as `galileo infer --moves`): "default" gives every chain the default move
+  set's exact joint moves (`galileo.runner.default_moves`: the scenario's own and an adaptive
+  joint random walk) and adapts its narrow widths (and the moves' widths)
+  during the chain's own first `warmup` sweeps (default: half the sweep target), carrying each
+  chain's adapted proposal and moves from round to round as `galileo.runner.next_task` does;
+  "paper" is Galileo section 3.2 as published. Either way a seed gives `galileo infer`'s
+  chains bit for bit. A width edit (`set_widths`) replaces every chain's adapted widths from
+  that sweep on and ends adaptation; steering a chain (`set_chain`, `reset_chain`) keeps them.
+* Sweep target and run until converged: a running chain pauses ("held") when it reaches the
+  `sweeps` target. With `until_rhat` (or `run_until`), once every active chain has stopped,
+  the kept draws (after max(warm-up, half)) are checked with `galileo.results.convergence`;
+  unless every latent's R-hat <= until_rhat and its bulk and tail ESS >= min_ess, or the
+  target has reached `max_sweeps`, the target grows as the batch runner's blocks do and the
+  held chains run on (an "until_check" event records each verdict).
+* `status()` carries the convergence verdict per latent (why not), the scenario's derived
+  quantities' posterior (e.g. the ramp's mass ratio) on the same kept draws, and the MAP;
+  the MAP compares only samples scored under the noise in force (a sigma edit changes every
+  log-likelihood's scale): until a sample under a new sigma exists it is pending (None).
 """
 from __future__ import annotations
 
@@ -51,15 +69,17 @@ from galileo import registry
 from galileo.datatypes import Tracks
 from galileo.errors import GalileoError
 from galileo.latents import as_number, by_name, check_bounds, check_noise, check_widths
-from galileo.mcmc import chain_rng
-from galileo.results import kept_draws, rhat_ess
-from galileo.runner import PROPOSAL_FIELDS, ChainTask, Problem, Settings, WorkerDied, run_task
+from galileo.mcmc import chain_rng, move_code
+from galileo.results import MIN_ESS, RHAT_TARGET, _summary, burn_in, convergence
+from galileo.runner import (MIN_BLOCK_SWEEPS, MOVE_SETS, PROPOSAL_FIELDS, ChainTask, Problem, RunConfig, Settings,
+                            WorkerDied, default_moves, run_task)
 
 from . import session as sess
 
 log = logging.getLogger(__name__)
 
 Listener = Callable[[str, dict], None]
+PAPER_SWEEPS = 75          # the paper's sweeps per chain (the sweep target's and warm-up's default)
 
 
 # -- chain state -----------------------------------------------------------------------------------------
@@ -94,33 +114,40 @@ class _Buf:
 
 
 class _Chain:
-    def __init__(self, cid: int, start: np.ndarray, rng_state: dict, dim: int):
+    def __init__(self, cid: int, start: np.ndarray, rng_state: dict, dim: int, proposal=None, moves: tuple = ()):
         self.id = cid
         self.start = np.asarray(start, float).copy()
         self.position = self.start.copy()
         self.logdensity: float | None = None   # None: evaluate at the start of the next sweep
         self.sweep = 0
         self.paused = False
+        self.held = False      # paused by the sweep target (not by a user); run until converged resumes it
         self.removed = False
         self.rng_state = rng_state
+        self.proposal = proposal   # galileo.mcmc.Proposal: the widths of its next sweep (adapted in warm-up)
+        self.moves = tuple(moves)  # its joint moves (widths adapted in warm-up)
         self.samples = _Buf(float, dim)
         self.logliks = _Buf(float)
+        self.noise = _Buf(float)   # the noise (sigma) each sample's loglik was computed under
         self.proposals = {k: _Buf(t, dim if wide else None) for k, (t, wide) in PROPOSAL_FIELDS.items()}
-        self.best: tuple[int, float] | None = None   # (sample index, loglik) of the chain's best sample
+        self.best: dict[float, tuple[int, float]] = {}   # noise -> (sample index, loglik) of the best sample under it
 
     def note_best(self, first: int = 0) -> None:
         ll = self.logliks.a[:self.logliks.n]
+        noise = self.noise.a[:self.noise.n]
         for i in range(first, len(ll)):
-            if self.best is None or ll[i] > self.best[1]:
-                self.best = (i, float(ll[i]))
+            b = self.best.get(float(noise[i]))
+            if b is None or ll[i] > b[1]:
+                self.best[float(noise[i])] = (i, float(ll[i]))
 
     def to_json(self) -> dict:
         return {"id": self.id, "start": self.start.tolist(), "position": self.position.tolist(),
                 # (-inf, a position outside the model's support, is stored as "evaluate again")
                 "logdensity": self.logdensity if self.logdensity is not None and math.isfinite(self.logdensity)
-                else None, "sweep": self.sweep, "paused": self.paused,
+                else None, "sweep": self.sweep, "paused": self.paused, "held": self.held,
                 "removed": self.removed, "rng": self.rng_state, "n_samples": len(self.samples),
-                "n_proposals": len(self.proposals["site"])}
+                "n_proposals": len(self.proposals["site"]),
+                "proposal": sess.proposal_to_json(self.proposal), "moves": [sess.move_to_json(m) for m in self.moves]}
 
 
 def _checked_init(info: dict, dim: int) -> dict:
@@ -148,15 +175,33 @@ class Controller:
 
     def __init__(self, scene, tracks: Tracks, *, chains: int = 16, seed: int = 0,
                  workers: int | None = None, settings: Settings | None = None,
-                 session_dir: str | Path | None = None, save_every_s: float = 1.0, executor=None, init=None):
+                 session_dir: str | Path | None = None, save_every_s: float = 1.0, executor=None, init=None,
+                 moves: str = "default", sweeps: int | None = PAPER_SWEEPS, warmup: int | None = None,
+                 until_rhat: float | None = None, min_ess: float = MIN_ESS, max_sweeps: int | None = None):
         """`executor`: anything with `map` (default: a `galileo.runner.LocalPool` of `workers`
         processes, always separate processes: the viewer simulates in this one). `init`: as
         `galileo.runner.infer`'s (e.g. `galileo.recognition.model.recognition_init`): its
-        proposal decides where this and every later chain starts (recorded in the session)."""
+        proposal decides where this and every later chain starts (recorded in the session).
+
+        `moves`: "default" or "paper" (see the module docstring); `sweeps`: the sweep target at
+        which each chain pauses (None: never); `warmup`: sweeps of width adaptation (default:
+        `galileo infer`'s for these sweeps (`RunConfig.warmup_sweeps`: half of them, with
+        until_rhat at least 100 or all; 75's without a target); always 0 with "paper");
+        `until_rhat`, `min_ess`, `max_sweeps` (default 20 x sweeps): run until converged, as
+        `galileo infer --until-rhat` (`min_ess` also says what "converged" means without it)."""
         if isinstance(chains, bool) or int(chains) != chains or chains < 0:
             raise ValueError(f"chains must be an integer >= 0, got {chains!r}")
         if isinstance(seed, bool) or int(seed) != seed or seed < 0:
             raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+        if moves not in MOVE_SETS:
+            raise ValueError(f"moves must be one of {', '.join(MOVE_SETS)}, got {moves!r}")
+        if sweeps is not None:
+            sweeps = _whole(sweeps, "sweeps", 1)
+        if warmup is not None:
+            warmup = _whole(warmup, "warmup", 0)
+        if until_rhat is not None and sweeps is None:
+            raise ValueError("until_rhat needs a sweep target (sweeps) to run on from")
+        until = _until(until_rhat, min_ess, max_sweeps, sweeps)
         scenario = registry.of(scene)
         lik_scene = scenario.prepare(scene, tracks)   # checks scene against tracks
         latents = scenario.latents(lik_scene)
@@ -167,6 +212,16 @@ class Controller:
                 raise GalileoError(f"{session_dir} already holds a session; open it with Controller.load")
         self._setup(scene, tracks, latents, int(seed), workers, settings, session_dir, save_every_s, executor)
         self._likelihood_scene = lik_scene
+        self.moves_set = moves
+        # the warm-up as `galileo infer` takes it for these sweeps (none with "paper")
+        self._warmup = RunConfig(sweeps=sweeps or PAPER_SWEEPS, moves=moves, warmup=warmup,
+                                 until_rhat=until_rhat).warmup_sweeps()
+        if moves == "default":
+            self._moves0 = default_moves(scenario, lik_scene, tracks, latents, self._bounds_array(), self._settings)
+        self._adapt_until = self._warmup
+        self._target = sweeps
+        self._until = until
+        self._min_ess = until["min_ess"] if until else _check_min_ess(min_ess)
         if init is not None:
             chosen = init(lik_scene, self.names, self._bounds_array(), max(int(chains), 1), self.seed,
                           self._settings.integer_sites)
@@ -176,7 +231,9 @@ class Controller:
             self._create_chains(ids)
             self._event("init", {"seed": self.seed, "chains": ids, "settings": self._settings.to_json(),
                                  "starts": {str(c): self._chains[c].start.tolist() for c in ids},
-                                 "init": self.init_info})
+                                 "init": self.init_info, "moves": self.moves_set, "warmup": self._warmup,
+                                 "joint_moves": [sess.move_to_json(m) for m in self._moves0],
+                                 "sweeps": self._target, "until": copy.deepcopy(self._until)})
         if self.session_dir is not None:
             self.session_dir.mkdir(parents=True, exist_ok=True)
             sess.write_static(self.session_dir, self._scene_json, self._tracks_json)
@@ -222,6 +279,17 @@ class Controller:
         self._dirty = True
         self._last_save = -math.inf
         self.init_info: dict = {"starts": "prior"}   # how chains start (recognition: its readings and proposal)
+        # moves, warm-up, sweep target, run until converged (a session recorded before them: the paper's kernel)
+        self.moves_set = "paper"
+        self._moves0: tuple = ()          # every new chain's joint moves (as built, before adaptation)
+        self._warmup = 0                  # sweeps of width adaptation (dropped with the burn-in)
+        self._adapt_until = 0             # chains adapt in their sweeps 1..this (0 once a user set the widths)
+        self._target: int | None = None   # each running chain pauses (held) when it reaches this sweep
+        self._until: dict | None = None   # {"until_rhat", "min_ess", "max_sweeps"}: run until converged
+        self._min_ess = float(MIN_ESS)
+        self._mv_n: np.ndarray = np.zeros(0, int)   # joint moves' proposals and acceptances, by move
+        self._mv_k: np.ndarray = np.zeros(0, int)
+        self._conv_cache: tuple | None = None
 
     # -- workers ------------------------------------------------------------------------------------------
     def _start_pool(self):
@@ -244,9 +312,9 @@ class Controller:
                     return False
                 s = self._settings
                 bounds = self._bounds_array()
-                proposal = s.proposal()
                 tasks = [ChainTask(self._problem, ch.id, ch.position.copy(), ch.logdensity, ch.sweep,
-                                   copy.deepcopy(ch.rng_state), 1, bounds, proposal, s.noise, True) for ch in run]
+                                   copy.deepcopy(ch.rng_state), 1, bounds, ch.proposal, s.noise, True,
+                                   moves=ch.moves, adapt_until=self._adapt_until) for ch in run]
                 self._in_flight = True
             try:
                 results = list(self._start_pool().map(run_task, tasks))
@@ -262,29 +330,87 @@ class Controller:
                     raise GalileoError(f"an inference worker failed: {type(e).__name__}: {e}") from e
                 raise
             with self._lock:
-                out = []
+                out, held = [], []
+                noise = {t.chain: t.noise for t in tasks}
                 for r in results:
                     ch = self._chains[r["chain"]]
+                    before = ch.sweep
                     ch.position = np.asarray(r["position"], float)
                     ch.logdensity = r["logdensity"]
                     ch.sweep = r["sweep"]
                     ch.rng_state = r["rng"]
+                    ch.proposal, ch.moves = r["proposal_state"], tuple(r["moves"])
                     ch.samples.extend(ch.position[None])
                     ch.logliks.extend([ch.logdensity])
+                    ch.noise.extend([noise[ch.id]])
                     for k in PROPOSAL_FIELDS:
                         ch.proposals[k].extend(r[k])
                     ch.note_best(len(ch.logliks) - 1)
-                    np.add.at(self._acc_n, r["site"].astype(int), 1)
-                    np.add.at(self._acc_k, r["site"].astype(int), r["accepted"].astype(int))
+                    self._count(r["site"], r["accepted"])
                     self._steps += int(r["steps"])
                     out.append((ch.id, ch.sweep, ch.logdensity, self._values(ch.position)))
+                    if self._target is not None and before < self._target <= ch.sweep and not ch.paused:
+                        ch.paused = ch.held = True
+                        held.append(ch.id)
                 self._rounds += 1
                 self._in_flight = False
                 self._dirty = True
                 self._notices.append(("sweeps", {"round": self._rounds, "results": out}))
+                if held:
+                    self._event("pause", {"chains": held, "reason": f"sweep target {self._target}"})
                 self._apply_pending()
+                self._until_step()
                 self._cond.notify_all()
             return True
+
+    def _count(self, site: np.ndarray, accepted: np.ndarray) -> None:
+        """Acceptance counts: per latent (single-site proposals) and per joint move."""
+        site, acc = np.asarray(site, int), np.asarray(accepted, int)
+        own = site >= 0
+        np.add.at(self._acc_n, site[own], 1)
+        np.add.at(self._acc_k, site[own], acc[own])
+        k = -site[~own] - 2                  # move k's code is -(k + 2) (-1, an independence move: not counted)
+        keep = k >= 0
+        if keep.any():
+            n = max(len(self._mv_n), int(k[keep].max()) + 1)
+            if n > len(self._mv_n):
+                self._mv_n = np.concatenate([self._mv_n, np.zeros(n - len(self._mv_n), int)])
+                self._mv_k = np.concatenate([self._mv_k, np.zeros(n - len(self._mv_k), int)])
+            np.add.at(self._mv_n, k[keep], 1)
+            np.add.at(self._mv_k, k[keep], acc[~own][keep])
+
+    def _until_step(self, base_from_paused: bool = False) -> None:
+        """Run until converged (under the lock, after a round): once no active chain runs and
+        some are held at the target, the verdict on the kept draws; unless converged or the
+        budget is spent, the target grows like the batch runner's blocks (max(25, half what is
+        done), up to the budget) and the held chains run on. `base_from_paused` (turning the
+        mode on with every chain stopped) treats every paused chain at or past the target as held."""
+        u = self._until
+        if u is None:
+            return
+        active = [ch for _, ch in sorted(self._chains.items()) if not ch.removed]
+        if not active or any(not ch.paused for ch in active):
+            return
+        held = [ch for ch in active if ch.held or (base_from_paused and self._target is not None
+                                                      and ch.sweep >= self._target)]
+        if not held:
+            return
+        conv = self._convergence_of(self._kept_locked(), u["until_rhat"], u["min_ess"])
+        base = max([self._target or 0] + [ch.sweep for ch in held])
+        detail = {"converged": conv["converged"], "summary": conv["summary"], "why_not": conv["why_not"],
+                  "sweeps": base, "max_sweeps": u["max_sweeps"], "until_rhat": u["until_rhat"],
+                  "min_ess": u["min_ess"]}
+        if conv["converged"]:
+            detail["outcome"] = "converged: the chains stay paused"
+        elif base >= u["max_sweeps"]:
+            detail["outcome"] = f"not converged, the budget of {u['max_sweeps']} sweeps is spent: the chains stay paused"
+        else:
+            self._target = base + min(max(MIN_BLOCK_SWEEPS, base // 2), u["max_sweeps"] - base)
+            for ch in held:
+                ch.paused = ch.held = False
+            detail.update(outcome=f"not converged: run on to sweep {self._target}", target=self._target,
+                          resumed=[ch.id for ch in held])
+        self._event("until_check", detail)
 
     def run_sweeps(self, n: int) -> int:
         """Run n rounds synchronously (rounds with no running chain do nothing); returns rounds run."""
@@ -472,7 +598,39 @@ class Controller:
             if old == {"narrow": n, "broad": b, "broad_every": e}:
                 return
             s.narrow, s.broad, s.broad_every = n, b, e
-            self._event("widths", {"narrow": n, "broad": b, "broad_every": e, "old": old})
+            detail = {"narrow": n, "broad": b, "broad_every": e, "old": old}
+            if self.moves_set == "default":
+                # the user's widths replace every chain's adapted ones from this sweep on
+                detail["replaced_adapted_narrow"] = {str(c): sess.proposal_to_json(ch.proposal)["narrow"]
+                                                     for c, ch in sorted(self._chains.items()) if not ch.removed}
+                if self._adapt_until:
+                    detail["adaptation"] = (f"ended: the chains' narrow widths adapted in warm-up (sweeps 1-"
+                                            f"{self._adapt_until}) are replaced by these from this sweep on")
+                    self._adapt_until = 0
+            for ch in self._chains.values():
+                ch.proposal = s.proposal()
+            self._event("widths", detail)
+        self._steer(apply)
+
+    def run_until(self, until_rhat: float | None, min_ess: float = MIN_ESS, max_sweeps: int | None = None) -> None:
+        """Turn run-until-converged on (or off with None): chains held at the sweep target run
+        on in blocks until every latent's R-hat <= until_rhat and its ESS >= min_ess, or the
+        target reaches max_sweeps (default: 20 x the target). With every chain stopped, the
+        verdict comes at once. Recorded as a "run_until" event."""
+        with self._lock:
+            target = self._target
+            if target is None:   # no target yet: the running chains stop for a verdict a block from now
+                target = max((ch.sweep for ch in self._chains.values() if not ch.removed), default=0) + MIN_BLOCK_SWEEPS
+        until = _until(until_rhat, min_ess, max_sweeps, target)
+
+        def apply():
+            if self._target is None:
+                self._target = target
+            self._until = until
+            if until is not None:
+                self._min_ess = until["min_ess"]
+            self._event("run_until", {"until": copy.deepcopy(until), "sweeps": self._target})
+            self._until_step(base_from_paused=True)
         self._steer(apply)
 
     def _check_active(self, chain: int) -> None:
@@ -492,8 +650,11 @@ class Controller:
             changed = [c for c in ids if not self._chains[c].removed and self._chains[c].paused != paused]
             for c in changed:
                 self._chains[c].paused = paused
+                self._chains[c].held = False   # the user's pause, or running on past the target
             if changed:
                 self._event("pause" if paused else "resume", {"chains": changed})
+                if paused:
+                    self._until_step()   # the last running chain stopped: the others may wait for a verdict
         self._steer(apply)
 
     def pause(self, chain: int | None = None) -> None:
@@ -534,7 +695,8 @@ class Controller:
             starts = self.scenario.initial_positions(self.likelihood_scene, self.latents, bounds, max(ids) + 1,
                                                      self.seed)
         for c in ids:
-            self._chains[c] = _Chain(c, starts[c], chain_rng(self.seed, c).bit_generator.state, len(self.names))
+            self._chains[c] = _Chain(c, starts[c], chain_rng(self.seed, c).bit_generator.state, len(self.names),
+                                     self._settings.proposal(), self._moves0)
         self._next_id = max(self._next_id, max(ids) + 1)
 
     def remove_chain(self, chain: int) -> None:
@@ -546,6 +708,7 @@ class Controller:
             if not ch.removed:
                 ch.removed = True
                 self._event("remove_chain", {"chains": [chain]})
+                self._until_step()
         self._steer(apply)
 
     def reset_chain(self, chain: int, to: str = "map", sample: tuple[int, int] | None = None) -> None:
@@ -554,7 +717,7 @@ class Controller:
         if to == "map":
             best = self.map()
             if best is None:
-                raise ValueError("no samples yet: there is no MAP to reset to")
+                raise ValueError(self.map_note() or "no samples yet: there is no MAP to reset to")
             src = (best[0], best[1])
         elif to == "sample":
             if sample is None or len(sample) != 2:
@@ -679,26 +842,71 @@ class Controller:
                 raise IndexError(f"chain {chain} has {n} samples, no index {index}")
             return self._values(ch.samples.a[index % n])
 
+    def sample_noise(self, chain: int) -> np.ndarray:
+        """(S,): the noise (sigma) each sample's log-likelihood was computed under."""
+        with self._lock:
+            ch = self._get(chain)
+            return ch.noise.get() if ch else np.empty(0)
+
+    def proposal_state(self, chain: int) -> tuple:
+        """(galileo.mcmc.Proposal, joint moves): the widths and moves of the chain's next sweep."""
+        with self._lock:
+            ch = self._get(chain)
+            if ch is None:
+                raise ValueError(f"chain {chain} starts after the round in flight")
+            return ch.proposal, ch.moves
+
+    @property
+    def warmup(self) -> int:
+        """Sweeps of width adaptation at the start of each chain (dropped with the burn-in)."""
+        return self._warmup
+
+    @property
+    def target_sweeps(self) -> int | None:
+        with self._lock:
+            return self._target
+
     def map(self) -> tuple[int, int, dict[str, float], float] | None:
-        """(chain, index, values, loglik) of the best sample of all chains (removed ones too)."""
+        """(chain, index, values, loglik) of the best sample of all chains (removed ones too)
+        among those scored under the noise in force: log-likelihoods under another sigma are
+        on another scale and are not compared. None before any sample under it (pending)."""
         with self._lock:
             best = None
+            noise = float(self._settings.noise)
             for c, ch in sorted(self._chains.items()):
-                if ch.best is not None and (best is None or ch.best[1] > best[2]):
-                    best = (c, ch.best[0], ch.best[1])
+                b = ch.best.get(noise)
+                if b is not None and (best is None or b[1] > best[2]):
+                    best = (c, b[0], b[1])
             if best is None:
                 return None
             c, i, ll = best
             return c, i, self._values(self._chains[c].samples.a[i]), ll
 
+    def map_note(self) -> str | None:
+        """Why there is no MAP now (None when there is one, or no sample at all yet)."""
+        with self._lock:
+            if self.map() is not None or not any(len(ch.samples) for ch in self._chains.values()):
+                return None
+            spec = self.scenario.noise
+            return (f"MAP pending: no sample scored under {spec.name} = {self._settings.noise:g} {spec.unit} yet "
+                    "(earlier log-likelihoods are under another sigma)")
+
     def status(self) -> dict:
         """{"running" (background thread), "rounds" (global sweep count), "sweeps" (chain sweeps,
         all chains), "proposals", "accepted", "physics_steps", "chains": {id: {"sweeps", "state"
-        ("running" | "paused"), "running", "paused", "loglik" (last sample's), "values" (current
-        position)}} for active chains, "removed": [ids], "acceptance": {latent: rate | None},
-        "r_hat": {latent: R-hat | None} (active chains with >= 4 samples, their second halves
-        cut to the shortest; None below 2 such chains or for a constant latent), "settings",
-        "map": {"chain", "index", "values", "loglik"} | None, "error": message | None}."""
+        ("running" | "paused"), "running", "paused", "held" (paused at the sweep target), "loglik"
+        (last sample's), "values" (current position), "narrow" (its next narrow widths)}} for
+        active chains, "removed": [ids], "acceptance": {latent: rate | None} (single-site
+        proposals), "moves": {"set", "joint": [names], "acceptance": {move: rate | None},
+        "warmup", "adapting" (some chain still adapts its widths)}, "target_sweeps", "until"
+        (run until converged: {"until_rhat", "min_ess", "max_sweeps"} | None),
+        "convergence": `galileo.results.convergence` of the active chains' kept draws (burn-in
+        max(warm-up, half)) against until_rhat (or 1.01) and min_ess, plus "kept_draws" and
+        "burn_in" (of the longest chain), "r_hat": {latent: R-hat | None} (the same),
+        "derived": the scenario's derived quantities' posterior summaries on the same kept
+        draws (as `InferenceResult.derived_posterior`), "settings", "map": {"chain", "index",
+        "values", "loglik", "noise"} | None, "map_note" (why no MAP: pending after a sigma
+        edit) | None, "error": message | None}."""
         with self._lock:
             chains = {}
             for c, ch in sorted(self._chains.items()):
@@ -706,24 +914,58 @@ class Controller:
                     continue
                 last = float(ch.logliks.a[ch.logliks.n - 1]) if ch.logliks.n else None
                 chains[c] = {"sweeps": ch.sweep, "state": "paused" if ch.paused else "running",
-                             "running": not ch.paused, "paused": ch.paused, "loglik": last,
-                             "values": self._values(ch.position)}
+                             "running": not ch.paused, "paused": ch.paused, "held": ch.held, "loglik": last,
+                             "values": self._values(ch.position),
+                             "narrow": sess.proposal_to_json(ch.proposal)["narrow"]}
             acc = {n: (float(self._acc_k[j] / self._acc_n[j]) if self._acc_n[j] else None)
                    for j, n in enumerate(self.names)}
-            kept = kept_draws([ch.samples.a[:ch.samples.n] for _, ch in sorted(self._chains.items())
-                               if not ch.removed])
+            move_acc = {m.name: (float(self._mv_k[k] / self._mv_n[k]) if k < len(self._mv_n) and self._mv_n[k]
+                                 else None) for k, m in enumerate(self._moves0)}
             best = self.map()
+            rhat_target = self._until["until_rhat"] if self._until else RHAT_TARGET
+            key = (self._rounds, len(self._events), rhat_target, self._min_ess,
+                   tuple((c, len(ch.samples)) for c, ch in sorted(self._chains.items()) if not ch.removed))
+            cached = self._conv_cache
+            kept = None if cached is not None and cached[0] == key else self._kept_locked()
+            longest = max((ch.sweep for ch in self._chains.values() if not ch.removed), default=0)
             out = {"running": self.running, "rounds": self._rounds,
                    "sweeps": int(sum(ch.sweep for ch in self._chains.values())),
-                   "proposals": int(self._acc_n.sum()), "accepted": int(self._acc_k.sum()),
+                   "proposals": int(self._acc_n.sum() + self._mv_n.sum()),
+                   "accepted": int(self._acc_k.sum() + self._mv_k.sum()),
                    "physics_steps": self._steps, "chains": chains,
                    "removed": [c for c, ch in sorted(self._chains.items()) if ch.removed],
-                   "acceptance": acc, "settings": self._settings.to_json(),
+                   "acceptance": acc,
+                   "moves": {"set": self.moves_set, "joint": [m.name for m in self._moves0], "acceptance": move_acc,
+                             "warmup": self._warmup,
+                             "adapting": any(ch.sweep < self._adapt_until for ch in self._chains.values()
+                                             if not ch.removed and not ch.paused)},
+                   "target_sweeps": self._target, "until": copy.deepcopy(self._until),
+                   "settings": self._settings.to_json(),
                    "map": None if best is None else {"chain": best[0], "index": best[1], "values": best[2],
-                                                     "loglik": best[3]},
-                   "error": self._error}
-        out["r_hat"] = rhat_ess(kept, self.names)[0]
+                                                     "loglik": best[3], "noise": float(self._settings.noise)},
+                   "map_note": self.map_note(), "error": self._error}
+        if kept is not None:   # outside the lock: arviz takes some milliseconds
+            conv = self._convergence_of(kept, rhat_target, self._min_ess)
+            conv["kept_draws"] = int(sum(len(k) for k in kept))
+            conv["burn_in"] = burn_in(longest, self._warmup)
+            derived = _derived_posterior(self.scenario, self.likelihood_scene, self.names, kept)
+            self._conv_cache = cached = (key, conv, derived)
+        out["convergence"] = copy.deepcopy(cached[1])
+        out["r_hat"] = dict(cached[1]["r_hat"])
+        out["derived"] = copy.deepcopy(cached[2])
         return out
+
+    def _kept_locked(self) -> list[np.ndarray]:
+        """The active chains' kept draws (copies): after max(warm-up, half) of each."""
+        out = []
+        for _, ch in sorted(self._chains.items()):
+            if not ch.removed:
+                n = ch.samples.n
+                out.append(ch.samples.a[burn_in(n, self._warmup):n].copy())
+        return out
+
+    def _convergence_of(self, kept: list[np.ndarray], rhat_target: float, min_ess: float) -> dict:
+        return convergence(kept, self.names, rhat_target, min_ess)
 
     # -- helpers -----------------------------------------------------------------------------------------------
     def _values(self, position) -> dict[str, float]:
@@ -749,6 +991,7 @@ class Controller:
                     record[f"c{c}_start"] = ch.start.copy()
                     record[f"c{c}_samples"] = ch.samples.get()
                     record[f"c{c}_logliks"] = ch.logliks.get()
+                    record[f"c{c}_noise"] = ch.noise.get()
                     for k, b in ch.proposals.items():
                         record[f"c{c}_{k}"] = b.get()
                 events = copy.deepcopy(self._events)
@@ -756,6 +999,8 @@ class Controller:
                 chains = {"version": sess.SESSION_VERSION, "names": list(self.names), "seed": self.seed,
                           "rounds": self._rounds, "next_id": self._next_id, "physics_steps": self._steps,
                           "n_events": len(self._events), "settings": settings,
+                          "moves": self.moves_set, "warmup": self._warmup, "adapt_until": self._adapt_until,
+                          "target_sweeps": self._target, "until": copy.deepcopy(self._until),
                           "chains": [copy.deepcopy(ch.to_json()) for _, ch in sorted(self._chains.items())]}
                 self._dirty = False
             sess.write_state(self.session_dir, settings=settings, events=events, chains=chains, record=record)
@@ -763,8 +1008,10 @@ class Controller:
 
     @classmethod
     def load(cls, session_dir: str | Path, *, workers: int | None = None,
-             save_every_s: float = 1.0, executor=None) -> "Controller":
-        """Restore a saved session exactly; its chains go on from where they stopped."""
+             save_every_s: float = 1.0, executor=None, sweeps: int | None = None) -> "Controller":
+        """Restore a saved session exactly; its chains go on from where they stopped (with
+        their adapted widths and moves). `sweeps`: the sweep target of a session recorded
+        before the controller kept one (a session's own target wins)."""
         folder = sess.check_folder(session_dir)
         path = folder / sess.SCENE_FILE
         scene_json = sess.read_json_file(folder, sess.SCENE_FILE)
@@ -800,15 +1047,36 @@ class Controller:
             chain_docs = list(doc["chains"])
             seed, rounds = int(doc["seed"]), int(doc["rounds"])
             next_id, steps = int(doc["next_id"]), int(doc["physics_steps"])
+            adapt_until = _whole(doc.get("adapt_until", 0), "adapt_until", 0)
+            target = doc.get("target_sweeps", sweeps)
+            target = None if target is None else _whole(target, "target_sweeps", 1)
+            until = doc.get("until")
+            if until is not None:
+                until = _until(until["until_rhat"], until["min_ess"], until["max_sweeps"], target)
+        dim = len(names)
+        with sess.reading(folder / sess.EVENTS_FILE):
+            # the move set, warm-up and joint moves as the init event recorded them (none: the paper's kernel)
+            first = next((e for e in events[:n_events] if e["kind"] == "init"), None)
+            detail = first["detail"] if first is not None and isinstance(first.get("detail"), dict) else {}
+            moves_set = detail.get("moves", "paper")
+            if moves_set not in MOVE_SETS:
+                raise ValueError(f"init: unknown moves {moves_set!r}")
+            warmup = _whole(detail.get("warmup", 0), "init: warmup", 0)
+            moves0 = tuple(sess.move_from_json(m, dim) for m in detail.get("joint_moves", []))
+            if moves_set == "paper" and (moves0 or warmup):
+                raise ValueError("init: the paper's moves with joint moves or a warm-up")
         record = sess.read_record(folder)
         self = cls.__new__(cls)
         self._setup(scene, tracks, latents, seed, workers, settings, folder, save_every_s, executor)
         self._rounds, self._next_id, self._steps = rounds, next_id, steps
         self._events = events[:n_events]
-        first = next((e for e in self._events if e["kind"] == "init"), None)
-        if first is not None and isinstance(first.get("detail"), dict) and isinstance(first["detail"].get("init"), dict):
-            self.init_info = _checked_init(first["detail"]["init"], len(names))
-        dim = len(names)
+        self.moves_set, self._warmup, self._moves0, self._adapt_until = moves_set, warmup, moves0, adapt_until
+        self._target, self._until = target, until
+        if until is not None:
+            self._min_ess = until["min_ess"]
+        if isinstance(detail.get("init"), dict):
+            self.init_info = _checked_init(detail["init"], dim)
+        valid_sites = set(range(dim)) | {move_code(k) for k in range(len(moves0))}
         for d in chain_docs:
             with sess.reading(folder / sess.CHAINS_FILE):
                 c = int(d["id"])
@@ -817,10 +1085,19 @@ class Controller:
                 rng_state = d["rng"]
                 bit_gen = getattr(np.random, rng_state["bit_generator"])()
                 bit_gen.state = rng_state
-                ch = _Chain(c, _vector(d["start"], dim), bit_gen.state, dim)
+                proposal = (sess.proposal_from_json(d["proposal"], dim) if "proposal" in d
+                            else settings.proposal())   # (recorded before adaptation: the settings' widths)
+                if proposal.integer_sites != settings.integer_sites:
+                    raise ValueError(f"chain {c}: integer sites {list(proposal.integer_sites)} differ from the "
+                                     f"latents' {list(settings.integer_sites)}")
+                chain_moves = (tuple(sess.move_from_json(m, dim) for m in d["moves"]) if "moves" in d else moves0)
+                if [type(m) for m in chain_moves] != [type(m) for m in moves0]:
+                    raise ValueError(f"chain {c}: its joint moves differ from the session's")
+                ch = _Chain(c, _vector(d["start"], dim), bit_gen.state, dim, proposal, chain_moves)
                 ch.position = _vector(d["position"], dim)
                 ch.logdensity = None if d["logdensity"] is None else float(d["logdensity"])
                 ch.sweep, ch.paused, ch.removed = int(d["sweep"]), bool(d["paused"]), bool(d["removed"])
+                ch.held = bool(d.get("held", False))
                 n_s, n_p = int(d["n_samples"]), int(d["n_proposals"])
                 if n_s != ch.sweep:
                     raise ValueError(f"chain {c}: {n_s} samples after {ch.sweep} sweeps")
@@ -831,22 +1108,99 @@ class Controller:
                     raise ValueError(f"chain {c}: fewer than the {n_s} committed samples")
                 ch.samples = _Buf(float, dim, samples[:n_s])
                 ch.logliks = _Buf(float, None, logliks[:n_s])
+                if f"c{c}_noise" in record:
+                    noise = record[f"c{c}_noise"]
+                    if noise.ndim != 1 or len(noise) < n_s or not np.all(np.isfinite(noise[:n_s]) & (noise[:n_s] > 0)):
+                        raise ValueError(f"chain {c}: fewer than the {n_s} committed samples' noise, or a bad one")
+                    ch.noise = _Buf(float, None, noise[:n_s])
+                else:   # recorded before per-sample noise: read from the sigma events
+                    ch.noise = _Buf(float, None, _noise_from_events(self._events, c, n_s, settings.noise,
+                                                                     scenario.noise.name))
                 for k, (t, wide) in PROPOSAL_FIELDS.items():
                     a = record[f"c{c}_{k}"]
                     if len(a) < n_p:
                         raise ValueError(f"chain {c}: fewer than the {n_p} committed proposals")
                     ch.proposals[k] = _Buf(t, dim if wide else None, a[:n_p])
                 site = ch.proposals["site"].get().astype(int)
-                if site.size and (site.min() < 0 or site.max() >= dim):
-                    raise ValueError(f"chain {c}: proposal sites outside 0..{dim - 1}")
-                np.add.at(self._acc_n, site, 1)
-                np.add.at(self._acc_k, site, ch.proposals["accepted"].get().astype(int))
+                bad = sorted(set(np.unique(site).tolist()) - valid_sites)
+                if bad:
+                    raise ValueError(f"chain {c}: proposal sites {bad[:5]} are neither latents 0..{dim - 1} nor the "
+                                     f"session's {len(moves0)} joint moves")
+                self._count(site, ch.proposals["accepted"].get())
                 ch.note_best()
             self._chains[c] = ch
         self._dirty = False
         self._last_save = time.monotonic()
         self._start_pool()
         return self
+
+
+def _whole(x, what: str, low: int) -> int:
+    """An integer >= low (ValueError otherwise)."""
+    if isinstance(x, bool) or not isinstance(x, (int, np.integer, float)) or int(x) != x or x < low:
+        raise ValueError(f"{what} must be an integer >= {low}, got {x!r}")
+    return int(x)
+
+
+def _check_min_ess(min_ess) -> float:
+    if isinstance(min_ess, bool) or not isinstance(min_ess, (int, float)) or not math.isfinite(min_ess) or min_ess < 0:
+        raise ValueError(f"min_ess must be a number >= 0, got {min_ess!r}")
+    return float(min_ess)
+
+
+def _until(until_rhat, min_ess, max_sweeps, sweeps: int | None) -> dict | None:
+    """Run-until-converged criteria checked as `galileo.runner.RunConfig.check` does (None:
+    off); max_sweeps defaults to 20 x the sweep target."""
+    if until_rhat is None:
+        return None
+    if (isinstance(until_rhat, bool) or not isinstance(until_rhat, (int, float)) or not math.isfinite(until_rhat)
+            or until_rhat <= 1.0):
+        raise ValueError(f"until_rhat must be a number above 1, got {until_rhat!r}")
+    base = int(sweeps or 1)
+    budget = (RunConfig(sweeps=base).sweep_budget() if max_sweeps is None   # 20 x the sweeps, as galileo infer's
+              else _whole(max_sweeps, "max_sweeps", 1))
+    if budget < base:
+        raise ValueError(f"max_sweeps must be >= the sweep target ({base}), got {max_sweeps!r}")
+    return {"until_rhat": float(until_rhat), "min_ess": _check_min_ess(min_ess), "max_sweeps": int(budget)}
+
+
+def _noise_from_events(events: list[dict], chain: int, n: int, current: float, name: str) -> np.ndarray:
+    """The noise each of a chain's first n samples was scored under, from the sigma events
+    (sessions recorded before per-sample noise): the first event's old value, then each event's
+    from the chain's sweep count at it (a chain created after an event: all of its samples)."""
+    sig = [e for e in events if e["kind"] == "sigma"]
+    out = np.full(n, float(sig[0]["detail"]["old"]) if sig else float(current))
+    created = False
+    for e in events:
+        if e["kind"] in ("init", "add_chains") and chain in e["detail"].get("chains", []):
+            created = True
+        elif e["kind"] == "sigma":
+            k = e.get("chain_sweeps", {}).get(str(chain))
+            if k is not None:
+                out[int(k):] = float(e["detail"][name])
+            elif not created:   # the chain came later: all its samples under this sigma (or a later one)
+                out[:] = float(e["detail"][name])
+    return out
+
+
+def _derived_posterior(scenario, scene, names, kept: list[np.ndarray]) -> dict[str, dict]:
+    """`InferenceResult.derived_posterior` on per-chain kept draws: the posterior summary of
+    each of the scenario's derived quantities (and of its log when positive)."""
+    rows = [r for k in kept for r in k]
+    values: dict[str, list] = {}
+    for row in rows:
+        for k, v in scenario.derived(scene, dict(zip(names, map(float, row)))).items():
+            if v is not None:
+                values.setdefault(k, []).append(float(v))
+    out = {}
+    for k, v in values.items():
+        x = np.asarray(v)
+        if len(x) != len(rows) or not np.all(np.isfinite(x)):
+            continue
+        out[k] = _summary(x)
+        if np.all(x > 0):
+            out[f"log_{k}"] = _summary(np.log(x))
+    return out
 
 
 def _vector(x, dim: int) -> np.ndarray:

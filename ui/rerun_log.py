@@ -11,6 +11,8 @@ Entity layout (timelines in brackets):
     chains/<c>/loglik          Scalars [sweep]
     chains/<c>/<latent>        Scalars [sweep]   (the scenario's latents, by name)
     posterior/<latent>         BarChart histogram (static, replaced on each call)
+    diagnostics/r_hat/<latent> Scalars [sweep]   (R-hat of the kept draws, logged when it changes)
+    diagnostics/converged      Scalars [sweep]   (1: every latent converged, 0: not)
     events                     TextLog [sweep]   (prior edits etc.)
     sim/<object>               LineStrips3D (static) + Points3D [frame]: a simulated trajectory
 
@@ -125,6 +127,7 @@ class RerunLogger:
         self._latents: list[str] = list(latents or [])
         self._dirty_sweep: int | None = None     # sweep in which new chains/latents were first seen
         self._named: set[str] = set()             # series given a legend name
+        self._last_convergence: tuple | None = None   # what log_convergence logged last
         self._closed = False
         self.stream: rr.RecordingStream | None = None
         if mode == "off":
@@ -194,20 +197,25 @@ class RerunLogger:
             return rrb.TimeSeriesView(name=name, origin="/chains", contents=contents)
 
         traces: list = [series("log-likelihood", "loglik")]
+        shares = [2]
         if latents:
             traces.append(rrb.Grid(*[series(n, _part(n)) for n in latents], name="latents"))
+            shares.append(3)
             posterior = rrb.Grid(*[rrb.BarChartView(name=f"posterior {n}", origin=f"/posterior/{_part(n)}")
                                    for n in latents], name="posterior")
         else:
             posterior = rrb.BarChartView(name="posterior", origin="/posterior")
+        traces.append(rrb.TimeSeriesView(name="R-hat per latent", origin="/diagnostics/r_hat"))
+        shares.append(1)
         traces.append(posterior)
+        shares.append(3)
         left = rrb.Vertical(
             rrb.Spatial2DView(name="video + tracks", origin="/video"),
             rrb.Spatial3DView(name="simulation", origin="/", contents=["/sim/**", "/observed/**"]),
             rrb.TextLogView(name="events", origin="/events"),
             row_shares=[3, 3, 1],
         )
-        right = rrb.Vertical(*traces, row_shares=[2, 3, 3][: len(traces)])
+        right = rrb.Vertical(*traces, row_shares=shares)
         return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[2, 3]),
                              rrb.TimePanel(timeline="sweep"), collapse_panels=False)
 
@@ -271,6 +279,29 @@ class RerunLogger:
                             rr.BarChart(counts.astype(np.float64), abscissa=0.5 * (edges[1:] + edges[:-1]),
                                         widths=np.diff(edges).astype(np.float32)),
                             static=True)
+
+    def log_convergence(self, sweep: int, r_hat: dict[str, float | None], converged: bool | None = None) -> None:
+        """Per-latent R-hat at diagnostics/r_hat/<latent> (a latent without one, e.g. in warm-up,
+        is left out) and diagnostics/converged (1/0) on the sweep timeline, when they changed
+        since the last call."""
+        if not self.enabled:
+            return
+        state = (tuple(sorted((str(k), v) for k, v in r_hat.items())), converged)
+        with self._lock:
+            if state == self._last_convergence:
+                return
+            self._last_convergence = state
+        for name in r_hat:
+            path = f"diagnostics/r_hat/{_part(name)}"
+            if path not in self._named:          # legend name, once per series
+                self._named.add(path)
+                self.stream.log(path, rr.SeriesLines(names=str(name)), static=True)
+        self._at("sweep", sweep)
+        for name, v in r_hat.items():
+            if v is not None and np.isfinite(v):
+                self.stream.log(f"diagnostics/r_hat/{_part(name)}", rr.Scalars(float(v)))
+        if converged is not None:
+            self.stream.log("diagnostics/converged", rr.Scalars(float(bool(converged))))
 
     def log_event(self, sweep: int, text: str, level: str = "INFO") -> None:
         """A text event (prior edit, restart, ...) on the sweep timeline at `events`."""

@@ -15,12 +15,16 @@ very motion that sample was scored on (same phases, same rest rule).
   browser's viewport has the video's aspect ratio, 4:3; otherwise the background image is
   stretched to the viewport); "Free view" undoes it.
 * GUI: frame slider with play; chain / sample scrubber and "jump to MAP"; log-likelihood
-  traces (uPlot) and posterior histograms; acceptance and R-hat; progress; prior bounds,
-  sigma and proposal widths; pause / resume / add / remove / reset / set chains.
+  traces (uPlot) and posterior histograms; acceptance; per latent whether it converged
+  (R-hat and ESS, green or red / orange with the reason) and the derived quantities'
+  posterior (the ramp's mass ratio); progress (never full while not converged); prior bounds,
+  sigma and proposal widths; pause / resume / add / remove / reset / set chains, run until
+  converged.
 Several tabs share one state: the GUI lives on the server, so an edit shows everywhere.
 """
 from __future__ import annotations
 
+import html
 import logging
 import threading
 import time
@@ -39,7 +43,10 @@ from galileo.results import burn_in
 log = logging.getLogger(__name__)
 
 OBJECT_COLORS = [(220, 90, 50), (70, 130, 220)]
-NOT_EDITS = ("init", "pause", "resume")
+NOT_EDITS = ("init", "pause", "resume", "run_until", "until_check")   # change no chain's target or state
+CONVERGED_COLOR = "#2b8a3e"     # a latent whose R-hat and ESS hold
+RHAT_COLOR = "#c92a2a"          # R-hat above the target, or not computable yet
+ESS_COLOR = "#e8590c"           # R-hat holds, too few effective draws
 SMALL_SCENE_M = 0.5    # scenes smaller than this get an initial view close enough to see them
 CHAIN_COLORS = ["#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#bfef45",
                 "#469990", "#9a6324", "#800000", "#808000", "#000075", "#a9a9a9", "#e6beff", "#fabebe"]
@@ -85,6 +92,47 @@ def recognition_curves(info: dict, names) -> dict:
             out[n] = lambda x, m=loc, s=scale: np.where(
                 x > 0, np.exp(-0.5 * ((np.log(np.maximum(x, 1e-300)) - m) / s) ** 2) / np.maximum(x, 1e-300), 0.0)
     return out
+
+
+def convergence_html(conv: dict, derived: dict, fmt=lambda name, v: f"{v:.3g}") -> str:
+    """The Chains panel's verdict: an overall line, then per latent one coloured line (green:
+    converged; red: R-hat above the target or not computable; orange: R-hat holds, ESS too
+    low) with R-hat, ESS (the lower of bulk and tail) and "converged" or "not converged: why";
+    then the posterior median and 90% interval of each derived quantity (as
+    `InferenceResult.derived_posterior` gives them; a log_<x> beside its <x> is left out)."""
+    e = html.escape
+    per = conv.get("per_latent") or {}
+    why = {}
+    for line in conv.get("why_not") or []:
+        name, _, reason = line.partition(": ")
+        why[name] = reason
+    n_ok = sum(1 for ok in per.values() if ok)
+    criteria = f"R-hat &le; {conv.get('rhat_target', 1.01):g}, ESS &ge; {conv.get('min_ess', 400):g}"
+    if conv.get("converged"):
+        head = (f'<div class="galileo-verdict" style="font-weight:600;color:{CONVERGED_COLOR}">'
+                f"Converged: all {len(per)} latents ({criteria})</div>")
+    else:
+        head = (f'<div class="galileo-verdict" style="font-weight:600;color:{RHAT_COLOR}">'
+                f"Not converged: {n_ok} of {len(per)} latents ({criteria})</div>")
+    rows = []
+    for name, ok in per.items():
+        r = (conv.get("r_hat") or {}).get(name)
+        ess = [x for x in ((conv.get("ess_bulk") or {}).get(name), (conv.get("ess_tail") or {}).get(name))
+               if x is not None]
+        if ok:
+            color, state = CONVERGED_COLOR, "converged"
+        else:
+            color = ESS_COLOR if (r is not None and r <= conv.get("rhat_target", 1.01)) else RHAT_COLOR
+            state = "not converged: " + why.get(name, "?")
+        rows.append(f'<div class="galileo-latent" data-latent="{e(name)}" data-converged="{str(bool(ok)).lower()}" '
+                    f'style="color:{color}"><b>{e(name)}</b> R-hat {"-" if r is None else f"{r:.3f}"}, '
+                    f'ESS {"-" if not ess else f"{min(ess):.0f}"}: {e(state)}</div>')
+    shown = [k for k in derived if not (k.startswith("log_") and k[4:] in derived)]
+    der = [f'<div class="galileo-derived"><b>{e(k)}</b>: median {fmt(k, derived[k]["q50"])} '
+           f'(90% {fmt(k, derived[k]["q05"])} &ndash; {fmt(k, derived[k]["q95"])})</div>' for k in shown]
+    if der:
+        der.insert(0, '<div style="margin-top:4px">Posterior (kept draws):</div>')
+    return f'<div class="galileo-convergence" style="font-size:13px;line-height:1.45;padding:0 0.75em 0.5em 0.75em">{head}{"".join(rows)}{"".join(der)}</div>'
 
 
 def camera_pose(cam: Camera) -> tuple[np.ndarray, np.ndarray, float, float]:
@@ -245,6 +293,7 @@ class Viewer:
         with g.add_folder("Chains"):
             self.progress = g.add_progress_bar(0.0, animated=True)
             self.status_text = g.add_markdown("")
+            self.convergence_box = g.add_html("")
             self.trace_plot = g.add_uplot((np.zeros(1), np.zeros(1)), (uplot.Series(label="sweep"),
                                                                        uplot.Series(label="chain 0")),
                                           title="log-likelihood per chain", aspect=1.6,
@@ -300,6 +349,11 @@ class Viewer:
             self.set_inputs = {n: g.add_number(n, start[n], step=1 if specs[n].integer else 0.001,
                                                hint=f"{specs[n].unit}: {specs[n].doc}") for n in ctrl.names}
             self.set_button = g.add_button("Set chain's latents")
+            until = ctrl.status().get("until") or {}
+            self.until_input = g.add_number("until R-hat", until.get("until_rhat", 1.01), min=1.0001, step=0.001,
+                                            hint="run on past the sweep target until every latent's R-hat is at "
+                                                 "most this and its ESS large enough (or the budget is spent)")
+            self.until_button = g.add_button("Run until converged")
         self._wire()
 
     def _chain(self) -> int:
@@ -361,6 +415,13 @@ class Viewer:
         self.set_button.on_click(steer(lambda: ctrl.set_chain(
             self._chain(), {n: float(h.value) for n, h in self.set_inputs.items()})))
 
+        def run_until():
+            st = ctrl.status()
+            u = st.get("until") or {}
+            ctrl.run_until(float(self.until_input.value), u.get("min_ess", st["convergence"]["min_ess"]),
+                           u.get("max_sweeps"))
+        self.until_button.on_click(steer(run_until))
+
     def _notify(self, text: str) -> None:
         for client in self.server.get_clients().values():
             client.add_notification("Galileo", text, color="red", auto_close_seconds=5.0)
@@ -416,11 +477,15 @@ class Viewer:
             self._pose_objects(self.frame)
             self._update_sim_lines()
             ll = self.ctrl.logliks(chain)[index] if len(samples) else float("nan")
+            noise = self.ctrl.sample_noise(chain)[index] if len(samples) else None
+            spec = self.scenario.noise
+            under = ("" if noise is None or noise == self.ctrl.settings.noise
+                     else f" (under {spec.name} = {noise:g})")
             start = self.ctrl.starts().get(chain)
             started = ("" if start is None else "; started at " + ", ".join(
                 f"{k} = {self._fmt(k, v)}" for k, v in zip(self.ctrl.names, start)))
             self.sample_text.content = (f"chain {chain}, sample {index}: " + ", ".join(
-                f"{k} = {self._fmt(k, v)}" for k, v in (values or {}).items()) + f"; log-lik {ll:.1f}" + started)
+                f"{k} = {self._fmt(k, v)}" for k, v in (values or {}).items()) + f"; log-lik {ll:.1f}{under}" + started)
             self.last_resim_s = time.perf_counter() - t0
         return self.last_resim_s
 
@@ -512,17 +577,54 @@ class Viewer:
             self.sample_slider.value = n - 1
             self.select_sample(chain, n - 1)
         st = ctrl.status()
-        done = sum(min(c["sweeps"], self.target_sweeps) for c in st["chains"].values())
-        self.progress.value = 100.0 * done / max(self.target_sweeps * max(len(ids), 1), 1)
-        acc = ", ".join(f"{k} {v:.2f}" for k, v in (st.get("acceptance") or {}).items() if v is not None)
-        rh = ", ".join(f"{k} {v:.2f}" for k, v in (st.get("r_hat") or {}).items() if v is not None)
-        m = st["map"]
-        map_txt = "" if m is None else (f"MAP (chain {m['chain']}, sample {m['index']}): " +
-                                        ", ".join(f"{k} = {self._fmt(k, v)}" for k, v in m["values"].items()) +
-                                        f", log-lik {m['loglik']:.1f}")
+        conv = st["convergence"]
+        target = st.get("target_sweeps") or self.target_sweeps
+        until = st.get("until")
+        total = until["max_sweeps"] if until else target     # run until converged: towards the budget
         running = sum(1 for c in st["chains"].values() if c.get("running"))
-        self.status_text.content = (f"{running} running / {len(ids)} chains, {st.get('sweeps', 0)} sweeps  \n"
-                                    f"acceptance: {acc or '-'}  \nR-hat: {rh or '-'}  \n{map_txt}")
+        done = sum(min(c["sweeps"], total) for c in st["chains"].values())
+        frac = done / max(total * max(len(ids), 1), 1)
+        reached = bool(st["chains"]) and all(c["sweeps"] >= target for c in st["chains"].values())
+        if conv["converged"]:
+            value, color = (100.0 if running == 0 else 100.0 * frac), "green"
+        else:   # never full, never "done", while not converged
+            value, color = min(100.0 * frac, 99.0), ("red" if reached and running == 0 else None)
+        if self.progress.value != value:
+            self.progress.value = value
+        if self.progress.color != color:
+            self.progress.color = color
+        if self.progress.animated != (running > 0):
+            self.progress.animated = running > 0
+        acc = ", ".join(f"{k} {v:.2f}" for k, v in (st.get("acceptance") or {}).items() if v is not None)
+        mv = st.get("moves") or {}
+        macc = ", ".join(f"{k} {v:.2f}" for k, v in (mv.get("acceptance") or {}).items() if v is not None)
+        m = st["map"]
+        map_txt = (st.get("map_note") or "") if m is None else (
+            f"MAP (chain {m['chain']}, sample {m['index']}): " +
+            ", ".join(f"{k} = {self._fmt(k, v)}" for k, v in m["values"].items()) + f", log-lik {m['loglik']:.1f}")
+        if conv["converged"]:
+            state = "converged" + (": the chains stay paused" if until and running == 0 else "")
+        elif reached and running == 0:
+            state = ("not converged, the budget is spent" if until and target >= until["max_sweeps"]
+                     else "sweep target reached, NOT converged: Resume or Run until converged to go on")
+        elif until:
+            state = (f"running until converged (R-hat <= {until['until_rhat']:g}, ESS >= {until['min_ess']:g}; "
+                     f"this block to sweep {target}, budget {until['max_sweeps']})")
+        else:
+            state = f"not converged yet (sweep target {target})"
+        moves_txt = f"moves: {mv.get('set', '?')}"
+        if mv.get("warmup"):
+            moves_txt += (f", widths adapting (warm-up: sweeps 1-{mv['warmup']})" if mv.get("adapting")
+                          else f", widths adapted in warm-up (sweeps 1-{mv['warmup']}, dropped)")
+        if macc:
+            moves_txt += f"; joint moves' acceptance: {macc}"
+        self.status_text.content = (f"{running} running / {len(ids)} chains, {st.get('sweeps', 0)} sweeps: {state}  \n"
+                                    f"{moves_txt}  \nacceptance: {acc or '-'}  \n"
+                                    f"convergence ({conv.get('kept_draws', 0)} kept draws): {conv['summary']}  \n"
+                                    f"{map_txt}")
+        box = convergence_html(conv, st.get("derived") or {})
+        if self.convergence_box.content != box:
+            self.convergence_box.content = box
         self._update_plots(ids)
 
     def _update_plots(self, ids: list[int]) -> None:
@@ -563,9 +665,8 @@ class Viewer:
         self.trace_plot.data = tuple(data)
         self.trace_plot.title = "log-likelihood per chain" + (f" (edits at sweeps {edits})" if edits else "")
         samples = [ctrl.samples(c) for c in ids]
-        kept = np.concatenate([s[burn_in(len(s)):] for s in samples if len(s)]) if any(len(s) for s in samples) else None
-        if kept is None:
-            return
+        w = ctrl.warmup   # the kept draws: after max(warm-up, half) of each chain (none yet in warm-up)
+        kept = np.concatenate([s[burn_in(len(s), w):] for s in samples] + [np.empty((0, len(ctrl.names)))])
         bounds = ctrl.settings.bounds
         starts = np.array(list(ctrl.starts().values()), float).reshape(-1, len(ctrl.names))
         for j, n in enumerate(ctrl.names):
