@@ -155,22 +155,8 @@ class InferenceResult:
         """Posterior summaries of the scenario's derived quantities (e.g. the ramp's mass
         ratio, the identified quantity), one value per kept draw; a positive quantity also gets
         its log's summary (`log_<name>`)."""
-        scenario = registry.get(self.scenario)
-        kept = self.kept().reshape(-1, len(self.names))
-        values: dict[str, list] = {}
-        for row in kept:
-            for k, v in scenario.derived(self.scene, dict(zip(self.names, map(float, row)))).items():
-                if v is not None:
-                    values.setdefault(k, []).append(float(v))
-        out = {}
-        for k, v in values.items():
-            x = np.asarray(v)
-            if len(x) != len(kept) or not np.all(np.isfinite(x)):
-                continue
-            out[k] = _summary(x)
-            if np.all(x > 0):
-                out[f"log_{k}"] = _summary(np.log(x))
-        return out
+        return derived_summaries(registry.get(self.scenario), self.scene, self.names,
+                                 self.kept().reshape(-1, len(self.names)))
 
     def per_chain(self) -> list[dict]:
         """Per chain: acceptance, its kept log-likelihood (median, max), its kept mean of each
@@ -277,6 +263,27 @@ def sweeps_to_map(logliks: np.ndarray, within_nats: float = 1.0, reference: floa
     return {"per_chain": per_chain, "median": med if med is not None and np.isfinite(med) else None,
             "never": float(np.mean([v is None for v in per_chain])) if per_chain else None,
             "within_nats": within_nats}
+
+
+def derived_summaries(scenario, scene, names: Sequence[str], rows) -> dict[str, dict]:
+    """Posterior summaries of `scenario.derived` over draws `rows` (each a latent vector in
+    `names` order): per quantity defined and finite at every draw, its summary, and its log's
+    (`log_<name>`) when it is positive throughout."""
+    rows = [np.asarray(r, float) for r in rows]
+    values: dict[str, list] = {}
+    for row in rows:
+        for k, v in scenario.derived(scene, dict(zip(names, map(float, row)))).items():
+            if v is not None:
+                values.setdefault(k, []).append(float(v))
+    out = {}
+    for k, v in values.items():
+        x = np.asarray(v)
+        if len(x) != len(rows) or not np.all(np.isfinite(x)):
+            continue
+        out[k] = _summary(x)
+        if np.all(x > 0):
+            out[f"log_{k}"] = _summary(np.log(x))
+    return out
 
 
 def _summary(x: np.ndarray) -> dict:

@@ -70,7 +70,7 @@ from galileo.datatypes import Tracks
 from galileo.errors import GalileoError
 from galileo.latents import as_number, by_name, check_bounds, check_noise, check_widths
 from galileo.mcmc import chain_rng, move_code
-from galileo.results import MIN_ESS, RHAT_TARGET, _summary, burn_in, convergence
+from galileo.results import MIN_ESS, RHAT_TARGET, burn_in, convergence, derived_summaries
 from galileo.runner import (MIN_BLOCK_SWEEPS, MOVE_SETS, PROPOSAL_FIELDS, ChainTask, Problem, RunConfig, Settings,
                             WorkerDied, default_moves, run_task)
 
@@ -948,7 +948,7 @@ class Controller:
             conv = self._convergence_of(kept, rhat_target, self._min_ess)
             conv["kept_draws"] = int(sum(len(k) for k in kept))
             conv["burn_in"] = burn_in(longest, self._warmup)
-            derived = _derived_posterior(self.scenario, self.likelihood_scene, self.names, kept)
+            derived = derived_summaries(self.scenario, self.likelihood_scene, self.names, [r for k in kept for r in k])
             self._conv_cache = cached = (key, conv, derived)
         out["convergence"] = copy.deepcopy(cached[1])
         out["r_hat"] = dict(cached[1]["r_hat"])
@@ -1180,26 +1180,6 @@ def _noise_from_events(events: list[dict], chain: int, n: int, current: float, n
                 out[int(k):] = float(e["detail"][name])
             elif not created:   # the chain came later: all its samples under this sigma (or a later one)
                 out[:] = float(e["detail"][name])
-    return out
-
-
-def _derived_posterior(scenario, scene, names, kept: list[np.ndarray]) -> dict[str, dict]:
-    """`InferenceResult.derived_posterior` on per-chain kept draws: the posterior summary of
-    each of the scenario's derived quantities (and of its log when positive)."""
-    rows = [r for k in kept for r in k]
-    values: dict[str, list] = {}
-    for row in rows:
-        for k, v in scenario.derived(scene, dict(zip(names, map(float, row)))).items():
-            if v is not None:
-                values.setdefault(k, []).append(float(v))
-    out = {}
-    for k, v in values.items():
-        x = np.asarray(v)
-        if len(x) != len(rows) or not np.all(np.isfinite(x)):
-            continue
-        out[k] = _summary(x)
-        if np.all(x > 0):
-            out[f"log_{k}"] = _summary(np.log(x))
     return out
 
 
