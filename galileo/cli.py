@@ -105,7 +105,8 @@ def cmd_infer(args: argparse.Namespace) -> int:
                     sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps, seed=args.seed,
                     workers=args.workers, noise=args.sigma, speedups=not args.no_speedups, narrow=args.narrow,
                     broad=args.broad, broad_every=args.broad_every, moves=args.moves, warmup=args.warmup,
-                    until_rhat=args.until_rhat, min_ess=args.min_ess, max_sweeps=args.max_sweeps)
+                    until_rhat=args.until_rhat, min_ess=args.min_ess, max_sweeps=args.max_sweeps,
+                    priors=priors_arg(args.priors))
     if args.max_sweeps is not None and args.until_rhat is None:
         raise GalileoError("--max-sweeps is the budget of --until-rhat; without it, use --sweeps")
     cfg.check()
@@ -152,6 +153,21 @@ def cmd_infer(args: argparse.Namespace) -> int:
     if warning:
         print(f"galileo: warning: {warning}", file=sys.stderr)
     return 0
+
+
+def priors_arg(text: str | None) -> dict | None:
+    """--priors: a JSON object merged into the scene file's priors section."""
+    import json
+
+    if text is None:
+        return None
+    try:
+        d = json.loads(text)
+    except ValueError as e:
+        raise GalileoError(f"--priors: not JSON: {e}") from None
+    if not isinstance(d, dict):
+        raise GalileoError(f"--priors: expected a JSON object, got {text!r}")
+    return d
 
 
 def convergence_line(diag: dict) -> str:
@@ -203,7 +219,7 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     protocol = registry.get(scenario).protocol
     cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
                     sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps,
-                    seed=args.seed, workers=args.workers, moves=args.moves)
+                    seed=args.seed, workers=args.workers, moves=args.moves, priors=priors_arg(args.priors))
     cfg.check()
     report = run_experiments(args.dataset, cfg, progress=not args.quiet, out=args.out)
     summary = dict(report["summary"])
@@ -441,6 +457,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--min-ess", type=float, default=400.0, help="ESS every latent needs (default 400)")
     i.add_argument("--max-sweeps", type=int, default=None,
                    help="the sweep budget of --until-rhat (default: 20 x --sweeps)")
+    i.add_argument("--priors", metavar="JSON", help="merged into the scene file's priors section, e.g. the ramp's "
+                   "model-mismatch options '{\"observation\": \"student_t\", \"infer_sigma\": true}'")
     i.add_argument("--out", required=True, help="result JSON (the sample record goes beside it as .samples.npz)")
     i.add_argument("--quiet", action="store_true", help="no progress bars")
     i.set_defaults(func=cmd_infer)
@@ -463,6 +481,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--workers", type=int, default=None)
     e.add_argument("--moves", choices=["default", "paper"], default="default",
                    help="move set of every video's chains (see galileo infer; paper: Galileo section 3.2 exactly)")
+    e.add_argument("--priors", metavar="JSON", help="merged into every video's scene priors (see galileo infer)")
     e.add_argument("--out", required=True, help="report JSON (rewritten after every video)")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=cmd_experiment)

@@ -143,6 +143,8 @@ class RunConfig:
     min_ess: float = MIN_ESS
     max_sweeps: int | None = None       # ... or this many sweeps (None: 20 x sweeps)
     rhat_target: float = RHAT_TARGET    # what `converged` in a result means (also without until_rhat)
+    priors: dict | None = None          # merged into the scene file's "priors" section (e.g. the ramp's
+                                        # observation model: {"observation": "student_t", "infer_sigma": true})
 
     def warmup_sweeps(self) -> int:
         """Sweeps of width adaptation: none with the paper's moves; else `warmup`, by default
@@ -396,6 +398,8 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
     cfg = config or RunConfig()
     cfg.check()
     t0 = time.perf_counter()
+    if cfg.priors:
+        scene = with_priors(scene, cfg.priors)
     scenario = registry.of(scene)
     prepared = scenario.prepare(scene, tracks)
     latents = scenario.latents(prepared)
@@ -466,6 +470,23 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
 
 MIN_BLOCK_SWEEPS = 25
 JOINT_LOG_SD = 0.3
+
+
+def with_priors(scene, overrides: dict):
+    """The scene with `overrides` merged into its scene file's "priors" section, parsed and
+    checked by its scenario (GalileoError naming the field)."""
+    from .errors import SceneError
+
+    if not isinstance(overrides, dict):
+        raise GalileoError(f"priors overrides must be a JSON object, got {overrides!r}")
+    d = scene.to_json()
+    merged = dict(d.get("priors") or {})
+    merged.update(overrides)
+    d["priors"] = merged
+    try:
+        return registry.get(scene.scenario).scene_from_json(d)
+    except SceneError as e:
+        raise GalileoError(f"--priors: {e}") from None
 
 
 def default_moves(scenario, prepared, tracks: Tracks, latents: Sequence[Latent], bounds: np.ndarray,
