@@ -74,3 +74,11 @@ def test_bad_convergence_settings_are_refused(frozen, bad):
     scene, tracks, _ = frozen
     with pytest.raises(GalileoError):
         infer(scene, tracks, RunConfig(chains=2, sweeps=20, workers=1, **bad), progress=False)
+
+
+def test_priors_overrides_reach_the_likelihood_and_bad_ones_are_refused(frozen):
+    scene, tracks, _ = frozen
+    res = infer(scene, tracks, RunConfig(chains=2, sweeps=4, workers=1, priors={"infer_sigma": True}), progress=False)
+    assert res.names[-1] == "log10_sigma_mps" and res.scene.to_json()["priors"]["infer_sigma"] is True
+    with pytest.raises(GalileoError, match="priors.observation"):
+        infer(scene, tracks, RunConfig(chains=2, sweeps=4, workers=1, priors={"observation": "cauchy"}), progress=False)
