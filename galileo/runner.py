@@ -11,6 +11,12 @@ Chain c draws its random numbers from SeedSequence(seed, spawn_key=(c,)) (`mcmc.
 and starts where its scenario says (`Scenario.initial_positions`: by default drawn from the
 prior, `initial_positions(bounds, c + 1, seed)[c]`; the splash starts as its seed says).
 
+Move sets (`RunConfig.moves`): "paper" is Galileo 3.2 as published; "default" adds warm-up
+adaptation of the widths and joint moves (`default_moves`: the scenario's own and an
+adaptive joint random walk). A task carries its chain's adapted widths and moves, so a
+chain continued in another task (`next_task`: the batch runner's blocks when it runs until
+converged, the controller's rounds) is the same chain.
+
 Executors: anything with `map(fn, iterable)` (results in order). `LocalPool` (forked worker
 processes, each with its own pybullet client; a likelihood is built once per worker and
 problem) is the default; `workers=1` runs in this process. A Dask client fits the same slot.
