@@ -103,6 +103,9 @@ class Scenario(ABC):
     description: str = ""
     noise: Noise
     protocol: dict = {"chains": 16, "sweeps": 75}   # the paper's chains x sweeps per video (the defaults)
+    # settings of the scene file's "priors" section that make the paper's own likelihood, used
+    # with `--moves paper` (the paper's whole protocol) where the scenario's defaults differ
+    paper_priors: dict = {}
     # the scenario's package: by default its `scene` module parses and makes scenes
     # (`scene_from_json`, `default_scene`) and its `tracking` module tracks (`track`)
     package: str = ""
@@ -171,6 +174,14 @@ class Scenario(ABC):
     def simulate(self, scene, n_frames: int, values: dict[str, float] | None = None,
                  fps: float | None = None) -> Trajectory:
         """One plain simulation of the scene (with `values` overriding its latents)."""
+
+    def synthetic_tracks(self, prepared_scene, values: dict[str, float], rng: np.random.Generator,
+                         noise: float) -> Tracks:
+        """The observations this scenario's likelihood assumes, simulated at `values` with
+        noise of SD `noise` (for simulation-based calibration, `galileo calibrate`)."""
+        from .errors import GalileoError
+
+        raise GalileoError(f"the {self.name} scenario cannot simulate observations")
 
     @abstractmethod
     def likelihood(self, prepared_scene, tracks: Tracks, noise: float, speedups: bool = True) -> Likelihood:

@@ -404,8 +404,7 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
     cfg = config or RunConfig()
     cfg.check()
     t0 = time.perf_counter()
-    if cfg.priors:
-        scene = with_priors(scene, cfg.priors)
+    scene = scene_for_moves(scene, cfg.moves, cfg.priors)
     scenario = registry.of(scene)
     prepared = scenario.prepare(scene, tracks)
     latents = scenario.latents(prepared)
@@ -476,6 +475,13 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
 
 MIN_BLOCK_SWEEPS = 25
 JOINT_LOG_SD = 0.3
+
+
+def scene_for_moves(scene, moves: str, priors: dict | None = None):
+    """The scene a move set infers on: with "paper", the scenario's `paper_priors` (its
+    paper's own likelihood, e.g. the ramp's Gaussian) merged into its priors; then `priors`."""
+    overrides = {**(registry.of(scene).paper_priors if moves == "paper" else {}), **(priors or {})}
+    return with_priors(scene, overrides) if overrides else scene
 
 
 def with_priors(scene, overrides: dict):

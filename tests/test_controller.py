@@ -43,8 +43,12 @@ def make(demo):
         c.close()
 
 
-def lik_at(demo, sigma, x):
-    return VelocityLikelihood(*demo, sigma_mps=sigma)(np.asarray(x, float))[0]
+def lik_at(demo, sigma, x, moves="paper"):
+    """The log-likelihood a controller with `moves` scores x with (the paper's: Gaussian)."""
+    from galileo.runner import scene_for_moves
+
+    scene, tracks = demo
+    return VelocityLikelihood(scene_for_moves(scene, moves), tracks, sigma_mps=sigma)(np.asarray(x, float))[0]
 
 
 def same_chains(a: Controller, b: Controller, ids=None):
@@ -250,7 +254,7 @@ def test_set_sigma_applies_from_the_next_sweep(demo, make):
     ctl.run_sweeps(2)
     s, ll = ctl.samples(0), ctl.logliks(0)
     for k in range(4):  # logliks as VelocityLikelihood computes them under each sweep's sigma
-        assert ll[k] == lik_at(demo, 0.05 if k < 2 else 0.1, s[k]), k
+        assert ll[k] == lik_at(demo, 0.05 if k < 2 else 0.1, s[k], ctl.moves_set), k
     assert ctl.settings.noise == 0.1 and ctl.status()["settings"]["sigma_mps"] == 0.1
     for bad in (0, -1, float("inf"), "x"):
         with pytest.raises(ValueError, match="sigma"):
@@ -416,7 +420,7 @@ def test_steering_during_a_sweep_applies_after_it(demo, make):
 
 
 def ll_ok(demo, ctl, index, sigma):
-    return all(ctl.logliks(c)[index] == lik_at(demo, sigma, ctl.samples(c)[index]) for c in ctl.chain_ids())
+    return all(ctl.logliks(c)[index] == lik_at(demo, sigma, ctl.samples(c)[index], ctl.moves_set) for c in ctl.chain_ids())
 
 
 def test_settings_are_checked(demo):
@@ -652,7 +656,8 @@ def test_start_stop_in_the_background(demo, make, tmp_path):
     k = ev["chain_sweeps"]["0"]
     s, ll = ctl.samples(0), ctl.logliks(0)
     assert 3 <= k < len(s)
-    assert ll[k - 1] == lik_at(demo, 0.05, s[k - 1]) and ll[k] == lik_at(demo, 0.08, s[k])
+    assert (ll[k - 1] == lik_at(demo, 0.05, s[k - 1], ctl.moves_set)
+            and ll[k] == lik_at(demo, 0.08, s[k], ctl.moves_set))
 
     # listeners: from the runner thread, sweeps of every round and the event in order
     rounds = [p for kind, p, _ in heard if kind == "sweeps"]

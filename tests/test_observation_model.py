@@ -224,7 +224,8 @@ def test_old_scene_files_load_unchanged():
     d = json.loads((DATA / "scene.json").read_text())
     s = scene_from_json(d)
     p = s.priors
-    assert (p.observation, p.student_t_dof, p.infer_sigma, p.infer_restitution) == ("gaussian", 4.0, False, False)
+    # a file without the field gets today's default, Student-t (the paper's Gaussian must be named)
+    assert (p.observation, p.student_t_dof, p.infer_sigma, p.infer_restitution) == ("student_t", 4.0, False, False)
     assert s.collision_restitution is None
     assert s.latent_names == ("m1_kg", "k1", "m2_kg", "k2")
     assert s.to_json()["priors"] == d["priors"] and "collision_restitution" not in s.to_json()
@@ -304,7 +305,7 @@ def test_inference_recovers_sigma(demo_frozen):
     starts at a small sigma climbs out slowly (the likelihood is steep there)."""
     scene, template, x0 = demo_frozen
     sigma_true = 0.03
-    scene = with_priors(scene, infer_sigma=True)
+    scene = with_priors(scene, infer_sigma=True, observation="gaussian")   # the noise below is Gaussian
     scene = dataclasses.replace(scene, priors=scene.priors.with_bounds(
         m1_kg=(0.08, 0.3), k1=(0.15, 0.3), m2_kg=(0.07, 0.25), k2=(0.3, 0.5), log10_sigma_mps=(-2.0, -1.0)))
     lik = VelocityLikelihood(scene, template, speedups=False)

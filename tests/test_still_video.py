@@ -94,8 +94,11 @@ def test_the_likelihood_of_a_still_video_ignores_the_masses_and_punishes_sliding
     tan(angle) costs what the sliding block's velocities predict (`_k1_tolerance`)."""
     from galileo.scenarios.ramp.likelihood import VelocityLikelihood
 
+    from galileo.runner import scene_for_moves
+
     scene, tracks = still_tracks
-    ll = VelocityLikelihood(scene, tracks, speedups=False)
+    # the cost below is the Gaussian's (the paper's likelihood)
+    ll = VelocityLikelihood(scene_for_moves(scene, "paper"), tracks, speedups=False)
     assert ll.names == ("m1_kg", "k1", "m2_kg", "k2")
     tan = math.tan(math.radians(ANGLE_DEG))
     for k1 in (0.5, 1.0, tan - 0.02):

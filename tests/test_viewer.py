@@ -93,20 +93,25 @@ def sigma_of(ctrl, chain: int, index: int) -> float:
 
 def loglik_of_drawn_motion(v, sigma: float) -> float:
     """Galileo eq. 1 recomputed here from what the viewer drew: the sum over visible frames f
-    and objects o of log N(v_obs[o, f, (x, z)] | v_drawn[o, f, (x, z)], sigma^2 I), the
-    observed velocities and visibility from the tracks (matched to the drawn objects by
-    role), with the normaliser -n log(sigma sqrt(2 pi)) for n terms."""
+    and objects o of log N(v_obs[o, f, (x, z)] | v_drawn[o, f, (x, z)], sigma^2 I) (or, with
+    the scene's Student-t observation model, scipy's log t density of each component with
+    scale sigma), the observed velocities and visibility from the tracks (matched to the
+    drawn objects by role)."""
+    from scipy import stats
+
     roles = [o.role for o in v.scene.objects]
     assert v.traj.names == [o.name for o in v.scene.objects]
-    sq, n = 0.0, 0
+    d = []
     for i, role in enumerate(roles):
         obs = v.tracks.by_role(role)
         seen = obs.visible
-        d = obs.velocity_mps[seen][:, [0, 2]] - v.traj.velocity_mps[i, seen][:, [0, 2]]
-        sq += float((d ** 2).sum())
-        n += d.size
-    assert n > 0
-    return -0.5 * sq / sigma ** 2 - n * math.log(sigma * math.sqrt(2 * math.pi))
+        d.append((obs.velocity_mps[seen][:, [0, 2]] - v.traj.velocity_mps[i, seen][:, [0, 2]]).ravel())
+    d = np.concatenate(d)
+    assert d.size > 0
+    priors = v.scene.priors
+    if priors.observation == "student_t":
+        return float(stats.t.logpdf(d, priors.student_t_dof, scale=sigma).sum())
+    return -0.5 * float((d ** 2).sum()) / sigma ** 2 - d.size * math.log(sigma * math.sqrt(2 * math.pi))
 
 
 def assert_draws_the_scored_motion(ctrl, v):

@@ -72,7 +72,7 @@ from galileo.latents import as_number, by_name, check_bounds, check_noise, check
 from galileo.mcmc import chain_rng, move_code
 from galileo.results import MIN_ESS, RHAT_TARGET, burn_in, convergence, derived_summaries
 from galileo.runner import (MIN_BLOCK_SWEEPS, MOVE_SETS, PROPOSAL_FIELDS, ChainTask, Problem, RunConfig, Settings,
-                            WorkerDied, default_moves, run_task)
+                            WorkerDied, default_moves, run_task, scene_for_moves)
 
 from . import session as sess
 
@@ -202,6 +202,7 @@ class Controller:
         if until_rhat is not None and sweeps is None:
             raise ValueError("until_rhat needs a sweep target (sweeps) to run on from")
         until = _until(until_rhat, min_ess, max_sweeps, sweeps)
+        scene = scene_for_moves(scene, moves)          # "paper": the paper's own likelihood too
         scenario = registry.of(scene)
         lik_scene = scenario.prepare(scene, tracks)   # checks scene against tracks
         latents = scenario.latents(lik_scene)
@@ -1066,6 +1067,9 @@ class Controller:
             if moves_set == "paper" and (moves0 or warmup):
                 raise ValueError("init: the paper's moves with joint moves or a warm-up")
         record = sess.read_record(folder)
+        if moves_set == "paper":   # sessions recorded before the default likelihood changed replay as they ran
+            with sess.reading(folder / sess.SCENE_FILE):
+                scene = scene_for_moves(scene, "paper")
         self = cls.__new__(cls)
         self._setup(scene, tracks, latents, seed, workers, settings, folder, save_every_s, executor)
         self._rounds, self._next_id, self._steps = rounds, next_id, steps
