@@ -218,19 +218,26 @@ def quantities(scenario, scene, names, rows: np.ndarray) -> dict[str, np.ndarray
 
 # -- one simulation ----------------------------------------------------------------------------------
 
+def _run_all(fn, tasks: list, workers, desc: str, unit: str, progress: bool) -> tuple[list, int]:
+    """fn over the tasks on a local pool (one pybullet client per worker), in order, with a
+    bar; (results, the number of workers)."""
+    from .runner import local_executor
+
+    executor = local_executor(workers, len(tasks))
+    out = []
+    try:
+        with tqdm(total=len(tasks), desc=desc, unit=unit, disable=not progress) as bar:
+            for r in executor.map(fn, tasks):
+                out.append(r)
+                bar.update()
+    finally:
+        executor.shutdown()
+    return out, getattr(executor, "workers", 1)
+
+
 def _scene_part(scenario, name: str):
     """A function of the scenario package's `synthetic` module, if it has one."""
-    import importlib
-
-    if not scenario.package:
-        return None
-    module = f"{scenario.package}.synthetic"
-    try:
-        return getattr(importlib.import_module(module), name, None)
-    except ModuleNotFoundError as e:
-        if e.name == module:
-            return None
-        raise
+    return scenario.optional_part("synthetic", name)
 
 
 def draw_simulation(scenario, i: int, seed: int, scenes: str = "default", scene=None,
@@ -337,7 +344,6 @@ def sbc(scenario_name: str, n: int, out_dir, *, seed: int = 0, chains: int = DEF
     noise); `infer_noise`: the likelihood's noise during inference (default: the same;
     another value makes a deliberately wrong posterior, for negative controls)."""
     from .model import Scenario
-    from .runner import local_executor
 
     scenario = registry.get(scenario_name)
     if type(scenario).synthetic_tracks is Scenario.synthetic_tracks:
@@ -366,22 +372,14 @@ def sbc(scenario_name: str, n: int, out_dir, *, seed: int = 0, chains: int = DEF
         tasks.append({"scenario": scenario.name, "scene": sc.to_json(), "truth": truth, "index": i, "seed": int(seed),
                       "noise": noise, "draws": int(draws), "config": cfg})
     t0 = time.perf_counter()
-    executor = local_executor(workers, len(tasks))
-    sims = []
-    try:
-        with tqdm(total=len(tasks), desc="SBC", unit="simulation", disable=not progress) as bar:
-            for r in executor.map(run_simulation, tasks):
-                sims.append(r)
-                bar.update()
-    finally:
-        executor.shutdown()
+    sims, n_workers = _run_all(run_simulation, tasks, workers, "SBC", "simulation", progress)
     wall = time.perf_counter() - t0
     if all("error" in s for s in sims):
         raise GalileoError(f"every simulation failed; the first: {sims[0]['error']}")
     report = summarise(sims, int(draws))
     report.update({"scenario": scenario.name, "n": int(n), "seed": int(seed), "draws": int(draws),
                    "scenes": "fixed" if scene is not None else scenes, "noise": noise, "infer_noise": infer_noise,
-                   "config": cfg, "workers": getattr(executor, "workers", 1), "wall_s": wall,
+                   "config": cfg, "workers": n_workers, "wall_s": wall,
                    "simulations": sims})
     write_report(report, out_dir, plots=plots)
     return report
@@ -579,8 +577,6 @@ def coverage_on_videos(dataset_dir, out_dir, *, seed: int = 0, chains: int = DEF
                        progress: bool = True) -> dict:
     """Interval coverage on a rendered dataset (see the module); writes coverage.json and
     coverage.md into out_dir; returns what coverage.json holds."""
-    from .runner import local_executor
-
     dataset_dir = Path(dataset_dir)
     if not dataset_dir.is_dir():
         raise GalileoError(f"dataset folder not found: {dataset_dir}")
@@ -596,15 +592,7 @@ def coverage_on_videos(dataset_dir, out_dir, *, seed: int = 0, chains: int = DEF
     if not tasks:
         raise GalileoError(f"{dataset_dir}: the index lists no videos")
     t0 = time.perf_counter()
-    executor = local_executor(workers, len(tasks))
-    videos = []
-    try:
-        with tqdm(total=len(tasks), desc="videos", unit="video", disable=not progress) as bar:
-            for r in executor.map(_video_task, tasks):
-                videos.append(r)
-                bar.update()
-    finally:
-        executor.shutdown()
+    videos, n_workers = _run_all(_video_task, tasks, workers, "videos", "video", progress)
     per = {}
     for k in ("k1", "log_mass_ratio"):
         rows = [v for v in videos if k in v.get("quantities", {})]
@@ -613,7 +601,7 @@ def coverage_on_videos(dataset_dir, out_dir, *, seed: int = 0, chains: int = DEF
     report = {"dataset": str(dataset_dir), "preset": index.get("preset"), "n_videos": len(videos),
               "failed": [{"name": v["name"], "error": v["error"]} for v in videos if "error" in v],
               "coverage": per, "converged_share": float(np.mean([v["converged"] for v in done])) if done else None,
-              "config": cfg, "seed": int(seed), "workers": getattr(executor, "workers", 1),
+              "config": cfg, "seed": int(seed), "workers": n_workers,
               "wall_s": time.perf_counter() - t0, "videos": videos}
     out_dir = Path(out_dir)
     write_json(out_dir / "coverage.json", report)

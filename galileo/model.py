@@ -229,15 +229,20 @@ class Scenario(ABC):
     # By default these come from the scenario package's `recognition` module, if it has one:
     # `readouts(prepared)`, `label(prepared, tracks, values)`, `examples(folder)`, `features(prepared)`.
     def _recognition(self, name: str):
+        return self.optional_part("recognition", name)
+
+    def optional_part(self, module: str, name: str):
+        """`name` from the scenario package's module `module` (e.g. "recognition",
+        "synthetic"), or None if the package has no such module or name."""
         import importlib
 
         if not self.package:
             return None
-        module = f"{self.package}.recognition"
+        full = f"{self.package}.{module}"
         try:
-            return getattr(importlib.import_module(module), name, None)
+            return getattr(importlib.import_module(full), name, None)
         except ModuleNotFoundError as e:
-            if e.name == module:
+            if e.name == full:
                 return None
             raise
 
