@@ -102,6 +102,15 @@ class Independence(NamedTuple):
     loc: tuple[float, ...]
     scale: tuple[float, ...]
     every: int = 1
+    name = "independence"   # a class attribute, not a field
+
+    def propose(self, rng: np.random.Generator, position) -> tuple[np.ndarray, float]:
+        """x' ~ q and log Hastings log q(x) - log q(x') (a joint move, see `step_move`)."""
+        x = self.sample(rng)
+        lq_new = self.logpdf(x)
+        if not lq_new > -math.inf:  # a draw on the edge of q's support (probability zero)
+            return x, -math.inf
+        return x, self.logpdf(position) - lq_new   # -inf when x is outside q's support: no move
 
     def check(self, n_latents: int | None = None) -> Independence:
         """Raise ValueError (one line) on a bad spec; return self."""
@@ -195,16 +204,6 @@ def step_independence(rng: np.random.Generator, state: MHState, q: Independence,
 
 # -- joint moves: each proposes and returns its own log Hastings factor ---------------------------
 
-def _independence_propose(self: Independence, rng: np.random.Generator, position) -> tuple[np.ndarray, float]:
-    x = self.sample(rng)
-    lq_new = self.logpdf(x)
-    if not lq_new > -math.inf:  # a draw on the edge of q's support (probability zero)
-        return x, -math.inf
-    return x, self.logpdf(position) - lq_new   # -inf when x is outside q's support: no move
-
-
-Independence.propose = _independence_propose
-Independence.name = "independence"
 
 
 class SiteMixture(NamedTuple):
