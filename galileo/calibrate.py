@@ -424,6 +424,19 @@ def _png(fig) -> bytes:
     return buf.getvalue()
 
 
+def _finish(fig, ax, xlabel: str, ylabel: str, title: str, path: Path) -> None:
+    """Label a figure's one axes, write it as PNG (atomically) and close it."""
+    import matplotlib.pyplot as plt
+
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    atomic_write_bytes(path, _png(fig))
+    plt.close(fig)
+
+
 def plot_ranks(name: str, counts, n_draws: int, path: Path) -> None:
     """The rank histogram with the pointwise binomial BAND band of a bin's count."""
     import matplotlib
@@ -440,13 +453,8 @@ def plot_ranks(name: str, counts, n_draws: int, path: Path) -> None:
     ax.axhline(n / bins, color="0.5", lw=1)
     ax.bar(edges[:-1], counts, width=np.diff(edges), align="edge", color="#4477aa", edgecolor="white")
     ax.set_xlim(0, n_draws + 1)
-    ax.set_xlabel(f"rank of the truth among {n_draws} posterior draws")
-    ax.set_ylabel("simulations")
-    ax.set_title(f"SBC ranks: {name} (n = {n})")
-    ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    atomic_write_bytes(path, _png(fig))
-    plt.close(fig)
+    _finish(fig, ax, f"rank of the truth among {n_draws} posterior draws", "simulations",
+            f"SBC ranks: {name} (n = {n})", path)
 
 
 def plot_ecdf(name: str, test: dict, p: float, n: int, path: Path) -> None:
@@ -464,13 +472,8 @@ def plot_ecdf(name: str, test: dict, p: float, n: int, path: Path) -> None:
     ax.step(z, diff, where="post", color="#cc3311", lw=1.5, label="ECDF - uniform")
     ax.axhline(0.0, color="0.5", lw=1)
     ax.set_xlim(0, 1)
-    ax.set_xlabel("fractional rank (PIT)")
-    ax.set_ylabel("ECDF difference")
-    ax.set_title(f"SBC ECDF difference: {name} (n = {n}, p = {p:.3g})")
-    ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    atomic_write_bytes(path, _png(fig))
-    plt.close(fig)
+    _finish(fig, ax, "fractional rank (PIT)", "ECDF difference",
+            f"SBC ECDF difference: {name} (n = {n}, p = {p:.3g})", path)
 
 
 def _fmt_cov(c: dict) -> str:

@@ -92,6 +92,7 @@ def cmd_track(args: argparse.Namespace) -> int:
 def cmd_infer(args: argparse.Namespace) -> int:
     from . import registry
     from .datatypes import Tracks
+    from .results import warning_of
     from .runner import RunConfig, infer
 
     if (args.chains is not None and args.chains < 1) or (args.sweeps is not None and args.sweeps < 1):
@@ -137,19 +138,19 @@ def cmd_infer(args: argparse.Namespace) -> int:
                                 source=str(args.model or "built-in"))
     result = infer(scene, tracks, cfg, progress=not args.quiet, init=init)
     result.notes = tuple(getattr(tracks, "notes", ()) or ())
-    npz = result.save(args.out)
+    doc = result.to_json()   # diagnostics and derived posteriors, computed once
+    npz = result.save(args.out, doc)
     for note in result.notes:
         print(f"note: {note}")
     print(f"MAP: {scenario.summary(result.scene, result.map)}")
-    derived = result.derived_posterior()
-    for k, v in derived.items():
+    for k, v in doc["posterior_derived"].items():
         if not k.startswith("log_"):
             print(f"posterior {k}: {v['q50']:.3g} (90%: {v['q05']:.3g}-{v['q95']:.3g})")
-    diag = result.diagnostics()
+    diag = doc["diagnostics"]
     print(f"{'converged' if diag['converged'] else 'NOT converged'} after {diag['sweeps']} sweeps "
           f"({convergence_line(diag)})")
     print(f"wrote {args.out} and {npz} ({result.timing_s['wall']:.1f} s, {result.steps} physics steps)")
-    warning = result.warning()
+    warning = warning_of(diag)
     if warning:
         print(f"galileo: warning: {warning}", file=sys.stderr)
     return 0

@@ -46,14 +46,6 @@ def _stack(kept: Sequence[np.ndarray]) -> np.ndarray | None:
     return np.stack([k[len(k) - length:] for k in kept])   # (chains, draws, D)
 
 
-def rhat_ess(kept: Sequence[np.ndarray], names: Sequence[str]) -> tuple[dict, dict]:
-    """Rank-normalised split R-hat and bulk ESS per latent from per-chain kept draws (each
-    (n_i, D)); None where they cannot be computed (fewer than 2 chains of MIN_KEPT_DRAWS, a
-    constant latent)."""
-    d = chain_stats(kept, names)
-    return d["r_hat"], d["ess_bulk"]
-
-
 def chain_stats(kept: Sequence[np.ndarray], names: Sequence[str]) -> dict:
     """{"r_hat", "ess_bulk", "ess_tail"}: per latent, None where not computable."""
     out = {k: {n: None for n in names} for k in ("r_hat", "ess_bulk", "ess_tail")}
@@ -225,23 +217,18 @@ class InferenceResult:
 
     def warning(self) -> str | None:
         """One line for users when the posterior comes from chains that have not converged."""
-        diag = self.convergence()
-        if diag["converged"]:
-            return None
-        first = diag["why_not"][0]
-        more = f" (and {len(diag['why_not']) - 1} more)" if len(diag["why_not"]) > 1 else ""
-        return (f"the posterior is not converged: {first}{more}; the MAP may still be good, but intervals and "
-                "shares are not to be trusted (run longer: --until-rhat 1.01 --max-sweeps N)")
+        return warning_of(self.convergence())
 
-    def save(self, result_path: str | Path) -> Path:
-        """result.json and, beside it, the full record as <stem>.samples.npz (no pickle)."""
+    def save(self, result_path: str | Path, doc: dict | None = None) -> Path:
+        """result.json and, beside it, the full record as <stem>.samples.npz (no pickle);
+        `doc`: `to_json()` if the caller has it already."""
         result_path = Path(result_path)
         npz_path = result_path.with_name(result_path.stem + ".samples.npz")
         buf = io.BytesIO()
         np.savez_compressed(buf, names=np.array(self.names), samples=self.samples, logliks=self.logliks,
                             starts=self.starts, **{f"proposal_{k}": v for k, v in self.proposals.items()})
         atomic_write_bytes(npz_path, buf.getvalue())
-        d = self.to_json()
+        d = dict(self.to_json() if doc is None else doc)
         d["samples_file"] = npz_path.name
         write_json(result_path, d)
         return npz_path
@@ -263,6 +250,17 @@ def sweeps_to_map(logliks: np.ndarray, within_nats: float = 1.0, reference: floa
     return {"per_chain": per_chain, "median": med if med is not None and np.isfinite(med) else None,
             "never": float(np.mean([v is None for v in per_chain])) if per_chain else None,
             "within_nats": within_nats}
+
+
+def warning_of(verdict: dict) -> str | None:
+    """The one-line warning for a `convergence` verdict (or a result's diagnostics); None when
+    converged."""
+    if verdict["converged"]:
+        return None
+    why = verdict["why_not"]
+    more = f" (and {len(why) - 1} more)" if len(why) > 1 else ""
+    return (f"the posterior is not converged: {why[0]}{more}; the MAP may still be good, but intervals and "
+            "shares are not to be trusted (run longer: --until-rhat 1.01 --max-sweeps N)")
 
 
 def derived_summaries(scenario, scene, names: Sequence[str], rows) -> dict[str, dict]:

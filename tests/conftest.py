@@ -65,3 +65,14 @@ def demo_viewer(demo_dir, session_dir, *, chains: int, seed: int, sweeps: int):
     ctrl.run_sweeps(sweeps)
     video, _ = read_video(demo_dir / "video.mp4")
     return ctrl, Viewer(ctrl, ctrl.likelihood_scene, tracks, video, port=free_port())
+
+
+def assert_same_decisions(fast, plain) -> None:
+    """Two inference results made the same accept/reject decisions on the same proposals, and
+    every fully evaluated proposal has the same log-likelihood (the speed-ups' exactness)."""
+    assert np.array_equal(fast.proposals["accepted"], plain.proposals["accepted"])
+    assert np.array_equal(fast.samples, plain.samples)
+    assert np.array_equal(fast.logliks, plain.logliks)
+    assert np.array_equal(fast.proposals["proposal"], plain.proposals["proposal"])
+    full = ~fast.proposals["early_stop"]
+    assert np.array_equal(fast.proposals["proposal_loglik"][full], plain.proposals["proposal_loglik"][full])

@@ -19,7 +19,7 @@ from galileo.runner import RunConfig, infer
 from galileo.scenarios.ramp.likelihood import VelocityLikelihood
 from galileo.scenarios.ramp.scene import Priors, default_scene, scene_from_json
 
-from conftest import DATA
+from conftest import DATA, assert_same_decisions
 
 SIGMA = "log10_sigma_mps"
 
@@ -183,12 +183,7 @@ def test_infer_with_every_option_matches_the_plain_path(demo_frozen, seed):
     fast = infer(scene, tracks, RunConfig(speedups=True, **cfg), progress=False)
     plain = infer(scene, tracks, RunConfig(speedups=False, **cfg), progress=False)
     assert fast.names == ("m1_kg", "k1", "m2_kg", "k2", "e_collision", SIGMA)
-    assert np.array_equal(fast.proposals["accepted"], plain.proposals["accepted"])
-    assert np.array_equal(fast.samples, plain.samples)
-    assert np.array_equal(fast.logliks, plain.logliks)
-    assert np.array_equal(fast.proposals["proposal"], plain.proposals["proposal"])
-    full = ~fast.proposals["early_stop"]
-    assert np.array_equal(fast.proposals["proposal_loglik"][full], plain.proposals["proposal_loglik"][full])
+    assert_same_decisions(fast, plain)
     assert fast.steps < plain.steps
 
 
