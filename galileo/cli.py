@@ -99,6 +99,13 @@ def cmd_infer(args: argparse.Namespace) -> int:
         raise GalileoError("--chains and --sweeps must be at least 1")   # before tracking, which takes a while
     if args.sigma is not None and not args.sigma > 0:
         raise GalileoError("--sigma must be positive")
+    if Path(args.video).is_dir():
+        return infer_folder(args)
+    if args.scene is None:
+        raise GalileoError("--scene is needed for a video (a folder of videos may instead hold one scene.json per "
+                           "subfolder)")
+    if args.scheduler or args.slurm or args.granularity:
+        raise GalileoError("--scheduler, --slurm and --granularity are for a folder of videos")
     scene = registry.load_scene(args.scene)
     scenario = registry.of(scene)
     protocol = scenario.protocol
@@ -156,6 +163,51 @@ def cmd_infer(args: argparse.Namespace) -> int:
     return 0
 
 
+def infer_folder(args: argparse.Namespace) -> int:
+    """galileo infer FOLDER: every video of the folder on Dask (galileo.batch.infer_folder)."""
+    from . import batch
+    from .runner import RunConfig
+
+    for flag, given in (("--tracks", args.tracks), ("--init recognition", args.init == "recognition"),
+                        ("--model", args.model), ("--recognition-move", args.recognition_move)):
+        if given:
+            raise GalileoError(f"{flag} is for one video, not a folder of videos")
+    if not args.out:
+        raise GalileoError("--out FOLDER is needed for a folder of videos (one result file per video)")
+    batch.out_folder(Path(args.out))
+    videos = batch.folder_videos(args.video, args.scene)
+    scene = registry_scene(videos[0][2])
+    protocol = scene[1].protocol
+    cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
+                    sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps, seed=args.seed, workers=1,
+                    noise=args.sigma, speedups=not args.no_speedups, narrow=args.narrow, broad=args.broad,
+                    broad_every=args.broad_every, moves=args.moves, warmup=args.warmup, until_rhat=args.until_rhat,
+                    min_ess=args.min_ess, max_sweeps=args.max_sweeps, priors=priors_arg(args.priors))
+    cfg.check()
+    log = (lambda m: print(m, file=sys.stderr)) if not args.quiet else None
+    with batch.open_client(args.workers, args.scheduler, slurm_arg(args.slurm), log=log) as client:
+        done = batch.infer_folder(args.video, args.scene, cfg, args.out, client,
+                                  granularity=args.granularity or "videos", progress=not args.quiet)
+    for r in done.records:
+        if r.get("status") == "failed":
+            print(f"{r['video']}: failed: {r['error']}")
+        else:
+            print(f"{r['video']}: {'converged' if r['converged'] else 'NOT converged'}; wrote {r['result_file']}")
+    print(f"{len(done.records)} videos ({done.resumed} kept from an earlier run, {len(done.failed)} failed) in "
+          f"{done.wall_s:.0f} s on {done.workers} workers; table: {Path(args.out) / 'results.csv'}")
+    if done.failed:
+        print(f"galileo: warning: {len(done.failed)} videos failed: {', '.join(done.failed[:5])}", file=sys.stderr)
+    return 0
+
+
+def registry_scene(path):
+    """(scene, scenario) of a scene file."""
+    from . import registry
+
+    scene = registry.load_scene(path)
+    return scene, registry.of(scene)
+
+
 def priors_arg(text: str | None) -> dict | None:
     """--priors: a JSON object merged into the scene file's priors section."""
     import json
@@ -200,32 +252,63 @@ def cmd_predict(args: argparse.Namespace) -> int:
 def cmd_experiment(args: argparse.Namespace) -> int:
     import json
 
-    from . import registry
-    from .jsonio import read_json
+    from . import batch, registry
     from .runner import RunConfig
 
-    index_path = Path(args.dataset) / "index.json"
-    if not index_path.exists():
-        raise GalileoError(f"{args.dataset} is not a dataset folder (no index.json; make one with `galileo dataset`)")
-    index = read_json(index_path, "dataset index")
-    scenario = index.get("scenario", "ramp") if isinstance(index, dict) else None
-    if scenario == "splash":
-        from .scenarios.splash.experiments import run_experiments
-    elif scenario == "ramp":
-        from .scenarios.ramp.experiments import run_experiments
-    elif not isinstance(index, dict):
-        raise GalileoError(f"{index_path}: expected a JSON object with the dataset's videos")
-    else:
-        raise GalileoError(f"{index_path}: no experiments for scenario {scenario!r}; expected ramp or splash")
+    scenario, _ = batch.dataset_index(args.dataset)
+    if registry.get(scenario).optional_part("experiments", "run_video") is None:
+        raise GalileoError(f"{Path(args.dataset) / 'index.json'}: no experiments for scenario {scenario!r}")
     protocol = registry.get(scenario).protocol
     cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
                     sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps,
-                    seed=args.seed, workers=args.workers, moves=args.moves, priors=priors_arg(args.priors))
+                    seed=args.seed, workers=1, moves=args.moves, priors=priors_arg(args.priors))
     cfg.check()
-    report = run_experiments(args.dataset, cfg, progress=not args.quiet, out=args.out)
-    summary = dict(report["summary"])
-    summary.pop("k1_errors", None)
+    batch.out_folder(Path(args.out))      # before a cluster starts
+    slurm = slurm_arg(args.slurm)
+    log = (lambda m: print(m, file=sys.stderr)) if not args.quiet else None
+    with batch.open_client(args.workers, args.scheduler, slurm, log=log) as client:
+        report = batch.run_experiments(args.dataset, cfg, args.out, client, granularity=args.granularity,
+                                       progress=not args.quiet, recognition=args.recognition)
+    summary = {k: v for k, v in report["summary"].items() if k not in ("pairs", "failed")}
     print(json.dumps(summary, indent=1))
+    run = report["run"]
+    print(f"{report['videos']} videos ({run['resumed_videos']} kept from an earlier run, {len(run['failed_videos'])} "
+          f"failed) in {run['wall_s']:.0f} s on {run['workers']} workers; wrote {Path(args.out) / 'report.md'}, "
+          f"results.parquet, results.csv")
+    if run["failed_videos"]:
+        print(f"galileo: warning: {len(run['failed_videos'])} videos failed (their errors: report.md, "
+              f"records/<video>.json): {', '.join(run['failed_videos'][:5])}", file=sys.stderr)
+    return 0
+
+
+def slurm_arg(path: str | None) -> dict | None:
+    """--slurm FILE: a JSON object of SLURM cluster settings (see galileo.batch.SLURM_SETTINGS)."""
+    from .jsonio import read_json
+
+    if path is None:
+        return None
+    d = read_json(path, "SLURM settings file")
+    if not isinstance(d, dict):
+        raise GalileoError(f"{path}: expected a JSON object of SLURM settings")
+    return d
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from .batch import META_KEYS
+    from .jsonio import read_json
+    from .report import build_report, read_table
+
+    records = read_table(args.results)
+    if not records:
+        raise GalileoError(f"{args.results}: the results table has no rows")
+    # the run's description (dataset, config), when its report.json lies beside the table
+    where = Path(args.results) if Path(args.results).is_dir() else Path(args.results).parent
+    meta = None
+    if (where / "report.json").is_file():
+        d = read_json(where / "report.json", "report file")
+        meta = {k: d[k] for k in META_KEYS if k in d} if isinstance(d, dict) else None
+    path = build_report(records, args.out, meta, recognition=args.recognition)
+    print(f"wrote {path} ({len(records)} videos)")
     return 0
 
 
@@ -425,14 +508,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser("infer", help="infer a scene's latents (masses, frictions, ...) from a video "
                                      "(MCMC over Bullet)")
-    i.add_argument("video", help="video file")
-    i.add_argument("--scene", required=True, help="scene JSON describing the video (for the ramp: its camera)")
+    i.add_argument("video", help="video file, or a folder of videos (run on Dask, one result file each in --out)")
+    i.add_argument("--scene", help="scene JSON describing the video (for the ramp: its camera); for a folder of "
+                   "videos, the one scene they were all filmed in (default: each subfolder's scene.json)")
     i.add_argument("--tracks", help="tracks JSON from `galileo track` (default: track the video first)")
     i.add_argument("--chains", type=int, default=None, help="chains (default: the scenario's protocol, ramp 16, "
                    "splash 50)")
     i.add_argument("--sweeps", type=int, default=None, help="sweeps per chain (default: 75)")
     i.add_argument("--seed", type=int, default=0)
-    i.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
+    i.add_argument("--workers", type=int, default=None,
+                   help="worker processes (default: all cores; for a folder of videos, the local Dask cluster's)")
     i.add_argument("--sigma", type=float, default=None,
                    help="likelihood noise SD (default: the scenario's; the ramp's is 0.05 m/s per velocity component)")
     i.add_argument("--narrow", type=float, help="half-width of the usual proposal (default: the latents', 0.05)")
@@ -460,8 +545,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the sweep budget of --until-rhat (default: 20 x --sweeps)")
     i.add_argument("--priors", metavar="JSON", help="merged into the scene file's priors section, e.g. the ramp's "
                    "model-mismatch options '{\"observation\": \"student_t\", \"infer_sigma\": true}'")
-    i.add_argument("--out", required=True, help="result JSON (the sample record goes beside it as .samples.npz)")
+    i.add_argument("--out", required=True, help="result JSON (the sample record goes beside it as .samples.npz); "
+                   "for a folder of videos, a folder (<name>.result.json each, records/, results.csv, results.parquet)")
     i.add_argument("--quiet", action="store_true", help="no progress bars")
+    i.add_argument("--scheduler", metavar="ADDRESS", help="a folder of videos: on this running Dask scheduler")
+    i.add_argument("--slurm", metavar="JSON", help="a folder of videos: on SLURM (dask-jobqueue; see README)")
+    i.add_argument("--granularity", choices=["videos", "chains"], default=None,
+                   help="a folder of videos: a Dask task per video (default) or per chain")
     i.set_defaults(func=cmd_infer)
 
     q = sub.add_parser("predict", help="answer the paper's questions from an inference result")
@@ -472,20 +562,37 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--out", help="also write the answers to this JSON file")
     q.set_defaults(func=cmd_predict)
 
-    e = sub.add_parser("experiment", help="the paper's experiments over a rendered dataset (ramp: Galileo "
-                       "section 6; splash: mass correlation and which is heavier)")
+    e = sub.add_parser("experiment", help="the paper's experiments over a rendered dataset on Dask (ramp: Galileo "
+                       "section 6; splash: mass correlation and which is heavier), with a report and figures")
     e.add_argument("dataset", help="folder written by `galileo dataset` (its index.json names the scenario)")
+    e.add_argument("--out", required=True, metavar="DIR",
+                   help="results folder: records/ (one JSON per video, kept as it finishes: run the same command "
+                        "again to resume), report.json, results.parquet, results.csv, report.md, figures/")
     e.add_argument("--chains", type=int, default=None,
                    help="chains per video (default: the scenario's protocol, ramp 16, splash 50)")
     e.add_argument("--sweeps", type=int, default=None, help="sweeps per chain (default: 75)")
     e.add_argument("--seed", type=int, default=0)
-    e.add_argument("--workers", type=int, default=None)
     e.add_argument("--moves", choices=["default", "paper"], default="default",
                    help="move set of every video's chains (see galileo infer; paper: Galileo section 3.2 exactly)")
     e.add_argument("--priors", metavar="JSON", help="merged into every video's scene priors (see galileo infer)")
-    e.add_argument("--out", required=True, help="report JSON (rewritten after every video)")
+    where = e.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None,
+                       help="worker processes of the local Dask cluster (default: all cores)")
+    where.add_argument("--scheduler", metavar="ADDRESS", help="use a running Dask scheduler (tcp://host:port)")
+    where.add_argument("--slurm", metavar="JSON", help="run on SLURM (dask-jobqueue); settings file, see README")
+    e.add_argument("--recognition", metavar="EVAL_DIR",
+                   help="add the recognition model's evaluation to the report (the --out of `galileo recognize eval`)")
+    e.add_argument("--granularity", choices=["videos", "chains"], default="videos",
+                   help="a Dask task per video (its chains in turn; default) or per chain")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=cmd_experiment)
+
+    rp = sub.add_parser("report", help="rebuild report.md and its figures from a results table, running nothing")
+    rp.add_argument("results", help="results.parquet or results.csv of `galileo experiment`, or its --out folder")
+    rp.add_argument("--out", required=True, metavar="DIR", help="folder for report.md and figures/")
+    rp.add_argument("--recognition", metavar="EVAL_DIR",
+                    help="add the recognition model's evaluation (the --out folder of `galileo recognize eval`)")
+    rp.set_defaults(func=cmd_report)
 
     cb = sub.add_parser("calibrate", help="simulation-based calibration (rank histograms, ECDF tests, interval "
                         "coverage) on simulated observations, or interval coverage on a rendered dataset")

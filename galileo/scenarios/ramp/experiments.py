@@ -1,33 +1,44 @@
-"""The paper's experiments at dataset scale (Galileo section 6) on a rendered dataset.
+"""The paper's experiments at dataset scale (Galileo section 6) on a rendered ramp dataset.
 
-For every video in which something moves: track, infer (the paper protocol by default),
-and compare with ground truth:
+`run_video` is one video's whole share of the work, run where the data are (a Dask worker,
+`galileo.batch`): track, infer (16 x 75 by default), and the two predictions that need the
+physics engine, each against ground truth:
 
-* friction: |k1_MAP - k1_true| for the ramp object (and, beside it, the error of the
-  posterior median, and whether the 90% interval of k1 holds the truth);
-* which is heavier (6.2): in collision videos, is m1/m2 on the right side of 1 (scored
-  where the true ratio is >= 2 or <= 0.5, as in the easy/moderate cases);
-* will it move (6.3): from the fit of an object's 20 degree video, predict whether it
-  slides on the 10 degree ramp, against the 10 degree video's ground truth.
+* will it move (6.3): on a 20 degree video whose object also has a 10 degree video, the
+  20 degree fit (the MAP) is simulated on the 10 degree ramp, alone; the record carries the
+  prediction and the 10 degree video's truth;
+* outcome (section 6.1, Fig. 5, in metres): on a video with a target, where the target comes
+  to rest along the ground's x axis, the MAP simulated to the video's end against the truth.
+
+`summarise` then scores the records: friction (|k1_MAP - k1_true|, the posterior median's
+error, 90% coverage), which is heavier (6.2: collision videos whose true ratio is >= 2 or
+<= 0.5, as in the easy/moderate cases), will it move, convergence.
 """
 from __future__ import annotations
 
 import dataclasses
-import json
+import time
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
-from ...errors import GalileoError
-from ...runner import RunConfig, infer
-from ...jsonio import write_json
 from ...datatypes import Trajectory
+from ...errors import GalileoError
+from ...jsonio import read_json
+from ...runner import RunConfig, infer
 from .predict import slides
 from .scene import Scene
 from .tracking import track
 
-MOVED_M = 0.005
+MOVED_M = 0.005          # a ground-truth object "moved" when its centre travelled more than this
+FIT_ANGLE_DEG, PREDICT_ANGLE_DEG = 20.0, 10.0   # will it move: fit on one, predict the other
+LATENTS = ("m1_kg", "k1", "m2_kg", "k2")
+
+
+def default_config() -> RunConfig:
+    from ... import registry
+
+    return RunConfig(**registry.get("ramp").protocol)
 
 
 def truth_moves(traj: Trajectory) -> bool:
@@ -35,94 +46,111 @@ def truth_moves(traj: Trajectory) -> bool:
     return bool(np.linalg.norm(traj.position_m[0, -1] - traj.position_m[0, 0]) > MOVED_M)
 
 
+def _truth(folder: Path) -> tuple[dict, Trajectory]:
+    d = read_json(folder / "truth.json", "truth file")
+    try:
+        return d["latents"], Trajectory.from_json(d["trajectory"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise GalileoError(f"{folder / 'truth.json'}: not a ramp truth file ({type(e).__name__}: {e})") from None
+
+
+def partner(folder: Path, lat: dict) -> Path | None:
+    """The 10 degree video of the object a 20 degree video shows (from the dataset's index)."""
+    from ...batch import dataset_index
+
+    try:
+        _, entries = dataset_index(folder.parent)
+    except GalileoError:
+        return None
+    me = next((v for v in entries if v["name"] == folder.name), None)
+    if me is None or "object" not in me or me.get("angle_deg", lat.get("angle_deg")) != FIT_ANGLE_DEG:
+        return None
+    other = next((v for v in entries if v is not me and v.get("object") == me["object"]
+                  and v.get("angle_deg") == PREDICT_ANGLE_DEG), None)
+    return folder.parent / other["name"] if other else None
+
+
 def run_video(folder: Path, config: RunConfig, executor=None) -> dict:
+    """One video's record (see the module). A still video is skipped (`status` "skipped");
+    a missing or broken file raises GalileoError (the batch engine records it)."""
+    folder = Path(folder)
     scene = Scene.load(folder / "scene.json")
-    truth = json.loads((folder / "truth.json").read_text())
-    lat = truth["latents"]
-    traj = Trajectory.from_json(truth["trajectory"])
-    rec = {"video": folder.name, "angle_deg": lat["angle_deg"], "material": lat["material"],
+    lat, traj = _truth(folder)
+    rec = {"video": folder.name, "scenario": "ramp", "angle_deg": lat["angle_deg"], "material": lat["material"],
            "object": f"{lat['material']}|{lat['shape1']['type']}|{lat['m1_kg']:.6f}",
-           "truth": {k: lat[k] for k in ("m1_kg", "k1", "m2_kg", "k2") if k in lat},
-           "moves": truth_moves(traj)}
-    if not rec["moves"]:
-        return rec  # nothing to track (the tracker refuses a still video)
-    tracks = track(folder / "video.mp4", scene, progress=False)
-    res = infer(scene, tracks, config, executor=executor, progress=False)
-    post = res.posterior()
-    derived = res.derived_posterior()
-    rec.update({"map": res.map, "map_loglik": res.map_loglik, "mass_ratio": res.mass_ratio(),
-                "posterior": {k: {q: v[q] for q in ("q05", "q50", "q95")} for k, v in post.items()},
-                "posterior_log_mass_ratio": ({q: derived["log_mass_ratio"][q] for q in ("q05", "q50", "q95")}
-                                             if "log_mass_ratio" in derived else None),
-                "converged": res.convergence()["converged"], "seconds": res.timing_s["wall"],
-                "shape_found": tracks.objects[0].shape.type, "offset_found": tracks.objects[0].offset_units})
-    if res.scene.target is not None:
+           "target": lat.get("target") or "none",
+           "truth": {k: lat[k] for k in LATENTS if k in lat}, "moves": truth_moves(traj)}
+    if scene.target is not None:
         # did the objects touch? (otherwise the video says nothing about the masses)
         rec["collision"] = bool(np.ptp(traj.position_m[1, :, 0]) > MOVED_M)
+    if not rec["moves"]:
+        # the tracker holds a still object at rest; a fit would only bound k1 from below
+        return {**rec, "status": "skipped", "skip_reason": "nothing moves in the video"}
+    t0 = time.perf_counter()
+    tracks = track(folder / "video.mp4", scene, progress=False)
+    t1 = time.perf_counter()
+    res = infer(scene, tracks, config, executor=executor, progress=False)
+    t2 = time.perf_counter()
+    doc = res.to_json()
+    diag = doc["diagnostics"]
+    derived = doc["posterior_derived"]
+    rec.update({"status": "fitted", "map": res.map, "map_loglik": res.map_loglik, "mass_ratio": res.mass_ratio(),
+                "posterior": {k: {q: v[q] for q in ("q05", "q25", "q50", "q75", "q95")}
+                              for k, v in doc["posterior"].items()},
+                "posterior_log_mass_ratio": ({q: derived["log_mass_ratio"][q] for q in ("q05", "q50", "q95")}
+                                             if "log_mass_ratio" in derived else None),
+                "converged": bool(diag["converged"]), "why_not": list(diag["why_not"]),
+                "r_hat": diag["r_hat"], "ess_bulk": diag["ess"], "sweeps": diag["sweeps"],
+                "shape_found": tracks.objects[0].shape.type, "offset_found": tracks.objects[0].offset_units})
+    other = partner(folder, lat)
+    if other is not None:
+        try:
+            scene10 = Scene.load(other / "scene.json")
+            _, traj10 = _truth(other)
+        except GalileoError as e:   # the partner's files are its own failure, not this video's
+            rec["will_it_move_error"] = f"{other.name}: {e}"
+        else:
+            # the fitted object (the shape its 20 degree scene file gives) on the 10 degree ramp, alone
+            alone = dataclasses.replace(scene10, objects=(dataclasses.replace(scene10.ramp_object,
+                                                                              shape=scene.ramp_object.shape),))
+            rec["will_it_move"] = {"angle_deg": PREDICT_ANGLE_DEG, "partner": other.name,
+                                   "predicted_moves": slides(alone, res.map, threshold_m=MOVED_M),
+                                   "true_moves": truth_moves(traj10)}
+    if scene.target is not None:
+        from ... import registry
+
+        sim = registry.get("ramp").simulate(res.scene, traj.n_frames, res.map, fps=traj.fps)
+        rec["outcome"] = {"target_start_x_m": float(traj.position_m[1, 0, 0]),
+                          "true_final_x_m": float(traj.position_m[1, -1, 0]),
+                          "predicted_final_x_m": float(sim.position_m[1, -1, 0])}
+    rec["timing"] = {"track_s": t1 - t0, "infer_s": t2 - t1, "chains_cpu_s": res.timing_s["chains_cpu"]}
     return rec
 
 
-def will_it_move(records: list[dict], folder: Path) -> list[dict]:
-    """Pair each object's 20 degree fit with its 10 degree video's truth."""
-    by_obj: dict[str, dict] = {}
-    for r in records:
-        by_obj.setdefault(r["object"], {})[r["angle_deg"]] = r
-    out = []
-    for obj, pair in by_obj.items():
-        if 20.0 not in pair or 10.0 not in pair or "map" not in pair[20.0]:
-            continue
-        r20 = pair[20.0]
-        scene10 = Scene.load(folder / pair[10.0]["video"] / "scene.json")
-        # the fitted object (the shape its 20 degree scene file gives) on the 10 degree ramp, alone
-        scene20 = Scene.load(folder / r20["video"] / "scene.json")
-        ramp_obj = dataclasses.replace(scene10.ramp_object, shape=scene20.ramp_object.shape)
-        alone = dataclasses.replace(scene10, objects=(ramp_obj,))
-        predicted = slides(alone, r20["map"], threshold_m=MOVED_M)
-        out.append({"object": obj, "predicted_moves": predicted, "true_moves": pair[10.0]["moves"],
-                    "k1_map": r20["map"]["k1"], "k1_true": r20["truth"]["k1"]})
-    return out
-
-
-def summarise(records: list[dict], wim: list[dict]) -> dict:
-    fitted = [r for r in records if "map" in r]
+def summarise(records: list[dict]) -> dict:
+    """The paper's numbers over the records (see the module)."""
+    fitted = [r for r in records if r.get("status") == "fitted"]
     k_err = [abs(r["map"]["k1"] - r["truth"]["k1"]) for r in fitted]
-    with_post = [r for r in fitted if "posterior" in r]
-    k_err_med = [abs(r["posterior"]["k1"]["q50"] - r["truth"]["k1"]) for r in with_post]
-    k_cover = [r["posterior"]["k1"]["q05"] <= r["truth"]["k1"] <= r["posterior"]["k1"]["q95"] for r in with_post]
+    k_err_med = [abs(r["posterior"]["k1"]["q50"] - r["truth"]["k1"]) for r in fitted]
+    k_cover = [r["posterior"]["k1"]["q05"] <= r["truth"]["k1"] <= r["posterior"]["k1"]["q95"] for r in fitted]
     heavy = [r for r in fitted if r.get("collision") and r.get("mass_ratio")
              and (r["truth"]["m1_kg"] / r["truth"]["m2_kg"] >= 2 or r["truth"]["m1_kg"] / r["truth"]["m2_kg"] <= 0.5)]
     heavy_ok = [(r["mass_ratio"] > 1) == (r["truth"]["m1_kg"] > r["truth"]["m2_kg"]) for r in heavy]
+    wim = [r["will_it_move"] for r in fitted if r.get("will_it_move")]
+    wim_ok = [w["predicted_moves"] == w["true_moves"] for w in wim]
+    out = [r["outcome"] for r in fitted if r.get("outcome") and r.get("collision")]
     return {"videos": len(records), "fitted": len(fitted),
+            "skipped": sum(r.get("status") == "skipped" for r in records),
+            "failed": [{"video": r["video"], "error": r.get("error", "")} for r in records if r.get("status") == "failed"],
             "k1_median_abs_error": float(np.median(k_err)) if k_err else None,
-            "k1_errors": k_err,
             "k1_median_abs_error_posterior_median": float(np.median(k_err_med)) if k_err_med else None,
             "k1_coverage_90": float(np.mean(k_cover)) if k_cover else None,
             "converged": int(sum(bool(r.get("converged")) for r in fitted)),
             "which_is_heavier": {"scored": len(heavy), "right": int(sum(heavy_ok)),
                                  "accuracy": float(np.mean(heavy_ok)) if heavy_ok else None},
-            "will_it_move": {"scored": len(wim), "right": int(sum(w["predicted_moves"] == w["true_moves"] for w in wim)),
-                             "accuracy": float(np.mean([w["predicted_moves"] == w["true_moves"] for w in wim]))
-                             if wim else None},
-            "seconds_per_video": float(np.mean([r["seconds"] for r in fitted])) if fitted else None}
-
-
-def run_experiments(folder: str | Path, config: RunConfig | None = None, progress: bool = True,
-                    out: str | Path | None = None, executor=None) -> dict:
-    """Every video of a dataset folder through tracking and the chain runner (on `executor`,
-    default: a local pool per video), then the three experiments; the report as a dict."""
-    folder = Path(folder)
-    index = folder / "index.json"
-    if not index.exists():
-        raise GalileoError(f"{folder} is not a dataset folder (no index.json; make one with `galileo dataset`)")
-    names = [v["name"] for v in json.loads(index.read_text())["videos"]]
-    cfg = config or RunConfig()
-    records = []
-    for name in tqdm(names, desc="videos", unit="video", disable=not progress):
-        records.append(run_video(folder / name, cfg, executor))
-        if out is not None:  # keep what is done so far
-            write_json(out, {"partial": True, "records": records})
-    wim = will_it_move(records, folder)
-    report = {"summary": summarise(records, wim), "records": records, "will_it_move": wim}
-    if out is not None:
-        write_json(out, report)
-    return report
+            "will_it_move": {"scored": len(wim), "right": int(sum(wim_ok)),
+                             "accuracy": float(np.mean(wim_ok)) if wim_ok else None},
+            "outcome_median_abs_error_m": (float(np.median([abs(o["predicted_final_x_m"] - o["true_final_x_m"])
+                                                            for o in out])) if out else None),
+            "seconds_per_video": (float(np.mean([r["timing"]["total_s"] for r in fitted if "total_s" in r.get("timing", {})]))
+                                  if any("total_s" in r.get("timing", {}) for r in fitted) else None)}

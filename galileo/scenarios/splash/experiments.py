@@ -28,23 +28,21 @@ bottom-up kind and volume, the MAP, the predicted mass and R-hat. Then:
   strictly the larger; a pair with a video that has no prediction (tracking or inference
   failed) counts as wrong (`unanswered`). Convergence is not required here.
 
-The report is rewritten after every video (`"partial": true` until the end). Run again with
-the same `out` and config, a partial report is resumed: its records for videos whose truth
-matches are kept and only the rest are run.
+`galileo.batch` runs `run_video` for every video (on Dask workers), keeps each record as it
+comes, and calls `summarise`.
 """
 from __future__ import annotations
 
 import itertools
-import json
 import math
+import time
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
-
 from ... import registry
 from ...errors import GalileoError
-from ...jsonio import read_json, write_json
+from ...jsonio import read_json
+from ...report import correlation
 from ...runner import RunConfig, infer
 from .scene import CM3
 
@@ -114,21 +112,25 @@ def run_video(folder: Path, config: RunConfig, executor=None) -> dict:
     if scene.scenario != "splash":
         raise GalileoError(f"{folder / 'scene.json'} is a {scene.scenario} scene, not a splash one")
     truth = read_truth(folder)
-    rec = {"video": folder.name, "object": scene.obj.name, "material": truth["material"], "truth": truth}
+    rec = {"video": folder.name, "scenario": "splash", "object": scene.obj.name, "material": truth["material"],
+           "truth": truth}
     scenario = registry.of(scene)
+    t0 = time.perf_counter()
     try:
         tracks = scenario.track(folder / "video.mp4", scene, progress=False)
     except Exception as e:  # noqa: BLE001 - any tracking failure is a result of the experiment
-        rec["error"] = f"tracking: {_one_line(e)}"
-        return rec
+        return {**rec, "status": "failed", "error": f"tracking: {_one_line(e)}"}
+    t1 = time.perf_counter()
     found = tracks.objects[0].bottom_up if tracks.objects else {}
     rec["bottom_up"] = {"kind": found.get("kind"), "volume_cm3": found.get("volume_cm3")}
     try:
         res = infer(scene, tracks, config, executor=executor, progress=False)
     except GalileoError as e:
-        rec["error"] = f"inference: {_one_line(e)}"
-        return rec
+        return {**rec, "status": "failed", "error": f"inference: {_one_line(e)}"}
     rec.update(result_record(res))
+    rec["status"] = "fitted"
+    rec["converged"] = convergence(rec)[0]
+    rec["timing"] = {"track_s": t1 - t0, "infer_s": time.perf_counter() - t1}
     return rec
 
 
@@ -162,19 +164,6 @@ def rhat_converged(rec: dict) -> bool:
     return r is not None and r < RHAT_MAX
 
 
-def correlation(true, predicted) -> dict:
-    """Pearson r and Spearman rho (None with fewer than 3 points or a constant side)."""
-    x, y = np.asarray(true, float), np.asarray(predicted, float)
-    out = {"n": int(len(x)), "pearson_r": None, "spearman_rho": None}
-    if len(x) < 3 or np.ptp(x) == 0 or np.ptp(y) == 0:
-        return out
-    from scipy.stats import rankdata
-
-    out["pearson_r"] = float(np.corrcoef(x, y)[0, 1])
-    out["spearman_rho"] = float(np.corrcoef(rankdata(x), rankdata(y))[0, 1])
-    return out
-
-
 def band_of(ratio: float) -> str | None:
     for name, (_, lo, hi) in BANDS.items():
         if lo <= ratio < hi:
@@ -206,7 +195,7 @@ def make_pairs(items: list[tuple[str, str, float]], n: int = PAIRS_PER_BAND) -> 
 
 def which_is_heavier(records: list[dict], n: int = PAIRS_PER_BAND) -> dict:
     """Accuracy per band with the median-over-chains mass (and with the MAP mass)."""
-    items = [(r["video"], r["object"], float(r["truth"]["mass_kg"])) for r in records]
+    items = [(r["video"], r["object"], float(r["truth"]["mass_kg"])) for r in records if "truth" in r]
     by_video = {r["video"]: r for r in records}
     out = {}
     for band, made in make_pairs(items, n).items():
@@ -263,74 +252,11 @@ def summarise(records: list[dict], heavier: dict | None = None) -> dict:
             "all_predicted": correlation([r["truth"]["mass_kg"] for r in predicted],
                                          [r["mass_kg"] for r in predicted]),
             "objects": {**correlation(obj_true, obj_pred), "converged_objects": len(objects),
-                        "objects": len({r["object"] for r in records})},
+                        "objects": len({r["object"] for r in records if "object" in r})},
             "median_relative_error": float(np.median(rel)) if rel else None},
         "which_is_heavier": {b: {k: v for k, v in d.items() if k != "scored"} for b, d in heavier.items()},
         "seconds_per_video": float(np.mean([r["seconds"] for r in predicted])) if predicted else None,
+        "failed": [{"video": r["video"], "error": r.get("error", "")} for r in records if r.get("status") == "failed"],
         "seed": SEED,
+        "pairs": {b: d["scored"] for b, d in heavier.items()},
     }
-
-
-# -- the dataset ---------------------------------------------------------------------------------------
-
-def dataset_videos(folder: Path) -> list[str]:
-    """The video names of a splash dataset folder's index.json (one-line errors)."""
-    d = read_json(folder / "index.json", "dataset index")
-    if not isinstance(d, dict) or not isinstance(d.get("videos"), list):
-        raise GalileoError(f"{folder / 'index.json'}: expected an object with a list of videos")
-    if d.get("scenario", "ramp") != "splash":
-        raise GalileoError(f"{folder / 'index.json'}: a {d.get('scenario', 'ramp')} dataset, not a splash one")
-    names = []
-    for i, v in enumerate(d["videos"]):
-        name = v.get("name") if isinstance(v, dict) else None
-        if not isinstance(name, str) or not name or "/" in name or name in (".", ".."):
-            raise GalileoError(f"{folder / 'index.json'}: videos[{i}] has no valid name")
-        names.append(name)
-    if not names:
-        raise GalileoError(f"{folder / 'index.json'}: no videos")
-    return names
-
-
-def _resumable(out: Path | None, cfg: RunConfig) -> dict[str, dict]:
-    """Records of a partial report at `out` run with the same config (video -> record)."""
-    if out is None or not Path(out).exists():
-        return {}
-    try:
-        d = json.loads(Path(out).read_text())
-    except (OSError, ValueError):
-        return {}
-    if not isinstance(d, dict) or not d.get("partial") or d.get("scenario") != "splash" \
-            or d.get("config") != config_json(cfg) or not isinstance(d.get("records"), list):
-        return {}
-    return {r["video"]: r for r in d["records"] if isinstance(r, dict) and isinstance(r.get("video"), str)}
-
-
-def run_experiments(folder: str | Path, config: RunConfig | None = None, progress: bool = True,
-                    out: str | Path | None = None, executor=None) -> dict:
-    """Every video of a splash dataset folder through tracking and the chain runner (on
-    `executor`, default: a local pool per video), then the summary; the report as a dict,
-    also written to `out` (after every video, `"partial": true`, until the end)."""
-    folder = Path(folder)
-    names = dataset_videos(folder)
-    cfg = config or default_config()
-    cfg.check()
-    done = _resumable(out, cfg)
-    head = {"scenario": "splash", "dataset": str(folder), "config": config_json(cfg)}
-    records, resumed = [], 0
-    for name in tqdm(names, desc="videos", unit="video", disable=not progress):
-        old = done.get(name)
-        if old is not None and old.get("truth") == read_truth(folder / name):
-            records.append(old)
-            resumed += 1
-        else:
-            records.append(run_video(folder / name, cfg, executor))
-        if out is not None:  # keep what is done so far
-            write_json(out, {**head, "partial": True, "records": records})
-    heavier = which_is_heavier(records)
-    summary = summarise(records, heavier)
-    summary["resumed_videos"] = resumed
-    report = {**head, "summary": summary, "records": records,
-              "pairs": {b: d["scored"] for b, d in heavier.items()}}
-    if out is not None:
-        write_json(out, report)
-    return report

@@ -1,0 +1,237 @@
+"""The dataset engine on Dask (galileo.batch): a local cluster of worker processes, records
+kept per video, resumable after a kill, a dying worker retried once, bad videos reported
+and the run going on, SLURM built from its documented settings."""
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from galileo import batch
+from galileo.cli import main
+from galileo.runner import RunConfig
+
+CFG = RunConfig(chains=2, sweeps=4, workers=1)
+ARGS = ["--chains", "2", "--sweeps", "4"]
+
+
+@pytest.fixture(scope="module")
+def dataset(demo_dir, tmp_path_factory):
+    """The rendered demo video as a 3-video ramp dataset: `a` (20 degrees, its object also in
+    `b`, listed as its 10 degree video), `b`, `c`."""
+    root = tmp_path_factory.mktemp("ds")
+    entries = []
+    for name, angle in (("a", 20.0), ("b", 10.0), ("c", 20.0)):
+        shutil.copytree(demo_dir, root / name)
+        entries.append({"name": name, "object": "X" if name in "ab" else "Y", "angle_deg": angle})
+    (root / "index.json").write_text(json.dumps({"preset": "test", "videos": entries}))
+    return root
+
+
+@pytest.fixture(scope="module")
+def client():
+    with batch.open_client(2) as c:
+        yield c
+
+
+def timeless(report: dict) -> dict:
+    """A report without what differs between runs of the same work (times, memory, the run's bookkeeping)."""
+    s = dict(report["summary"])
+    s.pop("seconds_per_video")
+    return {**report, "summary": s, "run": None}
+
+
+def record_without_run(rec: dict) -> dict:
+    return {k: v for k, v in rec.items() if k not in ("timing", "worker")}
+
+
+def test_dataset_runs_on_worker_processes_with_records_tables_and_report(dataset, client, tmp_path):
+    out = tmp_path / "out"
+    report = batch.run_experiments(dataset, CFG, out, client, progress=False)
+    recs = {p.stem: json.loads(p.read_text()) for p in (out / "records").glob("*.json")}
+    assert set(recs) == {"a", "b", "c"} and all(r["status"] == "fitted" for r in recs.values())
+    # the work ran in the workers, not here, and both workers took some
+    assert all(r["worker"]["pid"] != os.getpid() for r in recs.values())
+    assert len({r["worker"]["pid"] for r in recs.values()}) == 2
+    # the will-it-move question goes to a's 10 degree partner, whose truth it carries
+    objs = json.loads((dataset / "b" / "truth.json").read_text())["trajectory"]["objects"]
+    moved = abs(objs[0]["position_m"][-1][0] - objs[0]["position_m"][0][0]) > 0.005
+    assert recs["a"]["will_it_move"]["partner"] == "b" and recs["a"]["will_it_move"]["true_moves"] == moved
+    assert "will_it_move" not in recs["b"] and "will_it_move" not in recs["c"]
+    # outcome: the target's true resting place is the truth file's last frame
+    assert recs["b"]["outcome"]["true_final_x_m"] == objs[1]["position_m"][-1][0]
+    assert report["summary"]["fitted"] == 3 and report["run"]["resumed_videos"] == 0
+    for f in ("report.json", "results.parquet", "results.csv", "report.md"):
+        assert (out / f).is_file(), f
+    # the same work with every chain a Dask task of its own: the same numbers, bit for bit
+    again = batch.run_experiments(dataset, CFG, tmp_path / "chains", client, granularity="chains", progress=False)
+    assert timeless(again) == {**timeless(report), "granularity": "chains"}
+
+
+def test_failed_videos_are_recorded_and_the_run_goes_on(dataset, client, tmp_path):
+    ds = tmp_path / "ds"
+    shutil.copytree(dataset, ds)
+    (ds / "b" / "truth.json").write_text("{ not json")
+    (ds / "c" / "video.mp4").unlink()
+    report = batch.run_experiments(ds, CFG, tmp_path / "out", client, progress=False)
+    failed = {f["video"]: f["error"] for f in report["summary"]["failed"]}
+    assert set(failed) == {"b", "c"} and report["summary"]["fitted"] == 1
+    assert "not valid JSON" in failed["b"] and "video.mp4" in failed["c"]
+    assert all("\n" not in e for e in failed.values())
+    assert sorted(report["run"]["failed_videos"]) == ["b", "c"]
+    # a's will-it-move partner is b, whose truth is broken: a is fitted, the question left open
+    a = json.loads((tmp_path / "out" / "records" / "a.json").read_text())
+    assert "will_it_move" not in a and "not valid JSON" in a["will_it_move_error"]
+
+
+def test_a_dying_worker_is_retried_once_then_its_video_is_failed(client, tmp_path):
+    marker = tmp_path / "died-once"
+
+    def dies_once(executor=None):
+        if not marker.exists():
+            marker.write_text("x")
+            os._exit(1)            # the worker process dies, as killed or out of memory
+        return {"video": "once", "status": "fitted", "pid": os.getpid()}
+
+    def dies_always(executor=None):
+        os._exit(1)
+
+    def fine(executor=None):
+        return {"video": "fine", "status": "fitted"}
+
+    jobs = [batch.Job("once", dies_once, (), "k1"), batch.Job("always", dies_always, (), "k2"),
+            batch.Job("fine", fine, (), "k3")]
+    done = batch.run_jobs(client, jobs, batch.RecordStore(tmp_path / "records"), progress=False)
+    once, always, ok = done.records
+    assert once["status"] == "fitted" and marker.exists()          # ran again on a fresh worker
+    assert always["status"] == "failed" and "worker died 2 times" in always["error"]
+    assert ok["status"] == "fitted" and done.failed == ["always"]
+    # the nannies brought the workers back
+    deadline = time.time() + 30
+    while batch.n_workers(client) < 2 and time.time() < deadline:
+        time.sleep(0.2)
+    assert batch.n_workers(client) == 2
+
+
+def test_a_killed_run_resumes_with_the_same_report(dataset, tmp_path):
+    def start(out):
+        return subprocess.Popen([sys.executable, "-m", "galileo", "experiment", str(dataset), "--out", str(out),
+                                 "--workers", "1", "--quiet", *ARGS], start_new_session=True,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+    whole = tmp_path / "whole"
+    assert start(whole).wait(timeout=300) == 0
+    out = tmp_path / "killed"
+    p = start(out)
+    deadline = time.time() + 240
+    while not list((out / "records").glob("*.json")) and time.time() < deadline:
+        time.sleep(0.2)
+    os.killpg(p.pid, signal.SIGKILL)          # the whole run: the command and its workers
+    p.wait()
+    kept = {f.name for f in (out / "records").glob("*.json")}
+    assert 1 <= len(kept) < 3 and not (out / "report.json").exists()
+    assert not list((out / "records").glob("*.tmp*"))     # every record is whole or absent
+    p = start(out)
+    assert p.wait(timeout=300) == 0, p.stderr.read().decode()
+    a, b = (json.loads((d / "report.json").read_text()) for d in (whole, out))
+    assert b["run"]["resumed_videos"] == len(kept)
+    assert timeless(a) == timeless(b)
+    for name in ("a", "b", "c"):
+        ra, rb = (json.loads((d / "records" / f"{name}.json").read_text()) for d in (whole, out))
+        assert record_without_run(ra) == record_without_run(rb)
+
+
+def test_another_config_is_run_again_not_resumed(dataset, client, tmp_path):
+    out = tmp_path / "out"
+    batch.run_experiments(dataset, CFG, out, client, progress=False)
+    again = batch.run_experiments(dataset, CFG, out, client, progress=False)
+    assert again["run"]["resumed_videos"] == 3
+    other = batch.run_experiments(dataset, RunConfig(chains=2, sweeps=5, workers=1), out, client, progress=False)
+    assert other["run"]["resumed_videos"] == 0
+
+
+def test_unreachable_scheduler_is_one_line_and_exit_2(dataset, tmp_path, capsys):
+    from conftest import free_port
+
+    t0 = time.perf_counter()
+    code = main(["experiment", str(dataset), "--out", str(tmp_path / "o"), "--quiet", *ARGS,
+                 "--scheduler", f"tcp://127.0.0.1:{free_port()}"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.startswith("galileo: error: cannot reach the Dask scheduler") and "\n" not in err
+    assert time.perf_counter() - t0 < batch.CONNECT_TIMEOUT_S + 20
+
+
+@pytest.mark.parametrize("what, needle", [
+    ({"videos": []}, "no videos"), ({"videos": [{"name": "a"}, {"name": "a"}]}, "listed twice"),
+    ({"scenario": "nope", "videos": [{"name": "a"}]}, "unknown scenario"), ([1], "expected an object"),
+])
+def test_bad_dataset_index_is_one_line(tmp_path, capsys, what, needle):
+    (tmp_path / "index.json").write_text(json.dumps(what))
+    assert main(["experiment", str(tmp_path), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("galileo: error:") and needle in err and "\n" not in err
+
+
+def test_slurm_cluster_is_built_from_the_documented_settings():
+    settings = {"queue": "normal", "account": "lab", "cores": 8, "memory": "16GB", "walltime": "01:30:00",
+                "jobs": 3, "job_extra_directives": ["--exclusive"]}
+    cluster, jobs = batch.slurm_cluster(settings)
+    try:
+        script = cluster.job_script()
+    finally:
+        cluster.close()
+    assert jobs == 3
+    for line in ("#SBATCH -p normal", "#SBATCH -A lab", "#SBATCH --cpus-per-task=8", "#SBATCH -t 01:30:00",
+                 "#SBATCH --exclusive"):
+        assert line in script, line
+    # one single-threaded worker process per core: one pybullet client each
+    assert "--nworkers 8" in script and "--nthreads 1" in script
+    with pytest.raises(batch.GalileoError, match="unknown SLURM setting"):
+        batch.slurm_cluster({"queues": "x"})
+
+
+def test_infer_over_a_folder_of_videos_filmed_in_one_scene(demo_dir, tmp_path, capsys):
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    for name in ("x", "y"):
+        shutil.copy(demo_dir / "video.mp4", videos / f"{name}.mp4")
+    (videos / "notes.txt").write_text("not a video")
+    out = tmp_path / "out"
+    assert main(["infer", str(videos), "--scene", str(demo_dir / "scene.json"), "--out", str(out), "--workers", "1",
+                 "--chains", "2", "--sweeps", "3", "--quiet"]) == 0
+    from galileo.report import read_table
+
+    rows = {r["video"]: r for r in read_table(out / "results.csv")}
+    assert set(rows) == {"x", "y"} and all(r["status"] == "fitted" for r in rows.values())
+    # one video twice, one seed: the same result, each in its own result file
+    results = [json.loads((out / f"{n}.result.json").read_text()) for n in ("x", "y")]
+    assert results[0]["map"] == results[1]["map"] == rows["x"]["map"] == rows["y"]["map"]
+    assert (out / "x.result.samples.npz").is_file() and "x: " in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("setup, flags, needle", [
+    ("empty", [], "no subfolders"), ("empty", ["--scene", "S"], "no video files"),
+    ("videos", ["--tracks", "t.json"], "--tracks is for one video"),
+])
+def test_infer_folder_refusals_are_one_line(demo_dir, tmp_path, capsys, setup, flags, needle):
+    folder = tmp_path / "f"
+    folder.mkdir()
+    if setup == "videos":
+        shutil.copy(demo_dir / "video.mp4", folder / "x.mp4")
+    flags = [str(demo_dir / "scene.json") if f == "S" else f for f in flags]
+    assert main(["infer", str(folder), "--out", str(tmp_path / "o"), "--quiet", *flags]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("galileo: error:") and needle in err and "\n" not in err
+
+
+def test_out_must_name_a_folder(dataset, tmp_path, capsys):
+    (tmp_path / "file").write_text("x")
+    for out, needle in ((tmp_path / "report.json", "names the results folder"), (tmp_path / "file", "not a file")):
+        assert main(["experiment", str(dataset), "--out", str(out), "--quiet", *ARGS]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("galileo: error:") and needle in err and "\n" not in err
