@@ -2,6 +2,7 @@
 kept per video, resumable after a kill, a dying worker retried once, bad videos reported
 and the run going on, SLURM built from its documented settings."""
 import json
+import math
 import os
 import shutil
 import signal
@@ -65,6 +66,11 @@ def test_dataset_runs_on_worker_processes_with_records_tables_and_report(dataset
     assert "will_it_move" not in recs["b"] and "will_it_move" not in recs["c"]
     # outcome: the target's true resting place is the truth file's last frame
     assert recs["b"]["outcome"]["true_final_x_m"] == objs[1]["position_m"][-1][0]
+    # the objects collide: the log mass ratio is scored like a latent, its truth from truth.json
+    lat = json.loads((dataset / "b" / "truth.json").read_text())["latents"]
+    assert recs["b"]["collision"] and recs["b"]["truth"]["log_mass_ratio"] == pytest.approx(
+        math.log(lat["m1_kg"] / lat["m2_kg"]), rel=1e-12)
+    assert set(recs["b"]["posterior_derived"]["log_mass_ratio"]) >= {"q05", "q50", "q95"}
     assert report["summary"]["fitted"] == 3 and report["run"]["resumed_videos"] == 0
     for f in ("report.json", "results.parquet", "results.csv", "report.md"):
         assert (out / f).is_file(), f

@@ -111,8 +111,8 @@ def ramp_records(pred):
             "map": {"m1_kg": RATIOS[j] * m2, "k1": K1[j], "m2_kg": m2, "k2": 0.5},
             "mass_ratio": RATIOS[j],
             "posterior": {"k1": {"q05": K1[j] - 0.01, "q50": K1[j], "q95": K1[j] + 0.01}},
-            "posterior_log_mass_ratio": {"q05": math.log(RATIOS[j]) - 0.1, "q50": math.log(RATIOS[j]),
-                                         "q95": math.log(RATIOS[j]) + 0.1},
+            "posterior_derived": {"log_mass_ratio": {"q05": math.log(RATIOS[j]) - 0.1, "q50": math.log(RATIOS[j]),
+                                                     "q95": math.log(RATIOS[j]) + 0.1}},
             "converged": True, "r_hat": {"k1": 1.001}, "ess_bulk": {"k1": 500.0},
             "will_it_move": {"angle_deg": 10.0, "partner": f"obj{i}_10deg", "predicted_moves": MOVES_10[j],
                              "true_moves": MOVES_10[i]},
@@ -165,7 +165,7 @@ def test_spearman_and_accuracy_on_four_hand_worked_videos():
     predicted = [0.6, 0.3, 5.0, 3.0]     # ranks 2, 1, 4, 3 against 1, 2, 3, 4
     for r, t, p in zip(recs, true_ratio, predicted):
         r["truth"]["m1_kg"] = t * r["truth"]["m2_kg"]
-        r["posterior_log_mass_ratio"] = {"q05": math.log(p) - 1, "q50": math.log(p), "q95": math.log(p) + 1}
+        r["posterior_derived"]["log_mass_ratio"] = {"q05": math.log(p) - 1, "q50": math.log(p), "q95": math.log(p) + 1}
     # rho = 1 - 6 sum d^2 / (n (n^2 - 1)) = 1 - 6 x 4 / 60
     assert ramp_report.mass_ratio(recs)["posterior_median"]["spearman_rho"] == pytest.approx(0.6)
     acc = ramp_report.heavier(recs)
@@ -203,6 +203,11 @@ def test_interval_coverage_counts_closed_intervals_with_exact_binomial_bounds():
     # Clopper-Pearson: for k = n - 1 the upper bound is 0.975^(1/n); for k = n the lower is 0.025^(1/n)
     assert cov["a"]["ci95"][1] == pytest.approx(0.975 ** 0.25)
     assert cov["b"]["share"] == 1.0 and cov["b"]["ci95"][0] == pytest.approx(0.025 ** 0.25)
+    # a derived quantity (posterior_derived) is scored where the record has its truth
+    recs[0]["posterior_derived"] = {"d": q(0.0, 1.0)}
+    recs[1]["posterior_derived"] = {"d": q(0.0, 1.0)}
+    recs[0]["truth"]["d"] = 2.0                      # outside; v2 has no truth of d: not counted
+    assert (coverage(recs)["d"]["k"], coverage(recs)["d"]["n"]) == (0, 1)
 
 
 # -- whole reports ---------------------------------------------------------------------------------------

@@ -197,7 +197,7 @@ def test_cli_dispatches_on_index_scenario_with_its_protocol(tmp_path, monkeypatc
 
     seen = {}
 
-    def run(folder, cfg, out, client, granularity="videos", progress=True):
+    def run(folder, cfg, out, client, granularity="videos", progress=True, recognition=None):
         seen.update(chains=cfg.chains, sweeps=cfg.sweeps)
         return {"videos": 1, "summary": {"ok": batch.dataset_index(folder)[0]},
                 "run": {"resumed_videos": 0, "failed_videos": [], "wall_s": 0.0, "workers": 1}}

@@ -83,6 +83,8 @@ def run_video(folder: Path, config: RunConfig, executor=None) -> dict:
     if scene.target is not None:
         # did the objects touch? (otherwise the video says nothing about the masses)
         rec["collision"] = bool(np.ptp(traj.position_m[1, :, 0]) > MOVED_M)
+        if rec["collision"]:   # the one mass quantity a collision identifies: scored like a latent
+            rec["truth"]["log_mass_ratio"] = float(np.log(lat["m1_kg"] / lat["m2_kg"]))
     if not rec["moves"]:
         # the tracker holds a still object at rest; a fit would only bound k1 from below
         return {**rec, "status": "skipped", "skip_reason": "nothing moves in the video"}
@@ -97,8 +99,8 @@ def run_video(folder: Path, config: RunConfig, executor=None) -> dict:
     rec.update({"status": "fitted", "map": res.map, "map_loglik": res.map_loglik, "mass_ratio": res.mass_ratio(),
                 "posterior": {k: {q: v[q] for q in ("q05", "q25", "q50", "q75", "q95")}
                               for k, v in doc["posterior"].items()},
-                "posterior_log_mass_ratio": ({q: derived["log_mass_ratio"][q] for q in ("q05", "q50", "q95")}
-                                             if "log_mass_ratio" in derived else None),
+                "posterior_derived": {k: {q: v[q] for q in ("q05", "q25", "q50", "q75", "q95") if q in v}
+                                      for k, v in derived.items()},
                 "converged": bool(diag["converged"]), "why_not": list(diag["why_not"]),
                 "r_hat": diag["r_hat"], "ess_bulk": diag["ess"], "sweeps": diag["sweeps"],
                 "shape_found": tracks.objects[0].shape.type, "offset_found": tracks.objects[0].offset_units})
@@ -133,6 +135,9 @@ def summarise(records: list[dict]) -> dict:
     k_err = [abs(r["map"]["k1"] - r["truth"]["k1"]) for r in fitted]
     k_err_med = [abs(r["posterior"]["k1"]["q50"] - r["truth"]["k1"]) for r in fitted]
     k_cover = [r["posterior"]["k1"]["q05"] <= r["truth"]["k1"] <= r["posterior"]["k1"]["q95"] for r in fitted]
+    lr = [r for r in fitted if "log_mass_ratio" in r["truth"] and "log_mass_ratio" in r.get("posterior_derived", {})]
+    lr_cover = [r["posterior_derived"]["log_mass_ratio"]["q05"] <= r["truth"]["log_mass_ratio"]
+                <= r["posterior_derived"]["log_mass_ratio"]["q95"] for r in lr]
     heavy = [r for r in fitted if r.get("collision") and r.get("mass_ratio")
              and (r["truth"]["m1_kg"] / r["truth"]["m2_kg"] >= 2 or r["truth"]["m1_kg"] / r["truth"]["m2_kg"] <= 0.5)]
     heavy_ok = [(r["mass_ratio"] > 1) == (r["truth"]["m1_kg"] > r["truth"]["m2_kg"]) for r in heavy]
@@ -145,6 +150,7 @@ def summarise(records: list[dict]) -> dict:
             "k1_median_abs_error": float(np.median(k_err)) if k_err else None,
             "k1_median_abs_error_posterior_median": float(np.median(k_err_med)) if k_err_med else None,
             "k1_coverage_90": float(np.mean(k_cover)) if k_cover else None,
+            "log_mass_ratio_coverage_90": float(np.mean(lr_cover)) if lr_cover else None,
             "converged": int(sum(bool(r.get("converged")) for r in fitted)),
             "which_is_heavier": {"scored": len(heavy), "right": int(sum(heavy_ok)),
                                  "accuracy": float(np.mean(heavy_ok)) if heavy_ok else None},

@@ -56,11 +56,11 @@ def mass_ratio(records: list[dict]) -> dict:
     """Inferred against true m1/m2 on fitted collision videos: the posterior median of the log
     ratio and the MAP ratio, each with Pearson (of log ratios) and Spearman."""
     col = _collisions(records)
-    post = [r for r in col if finite(get(r, "posterior_log_mass_ratio.q50"))]
+    post = [r for r in col if finite(get(r, "posterior_derived.log_mass_ratio.q50"))]
     mp = [r for r in col if finite(r.get("mass_ratio")) and r["mass_ratio"] > 0]
     return {"collision_videos": len(col),
             "posterior_median": correlation([_true_log_ratio(r) for r in post],
-                                            [r["posterior_log_mass_ratio"]["q50"] for r in post]),
+                                            [r["posterior_derived"]["log_mass_ratio"]["q50"] for r in post]),
             "map": correlation([_true_log_ratio(r) for r in mp], [math.log(r["mass_ratio"]) for r in mp])}
 
 
@@ -86,7 +86,7 @@ def heavier(records: list[dict]) -> dict:
     bins = {_bin_label(j): {"right": 0, "right_map": 0, "n": 0} for j in range(len(HEAVIER_RATIO_EDGES))}
     total = {"right": 0, "right_map": 0, "n": 0}
     for r in _collisions(records):
-        q50, t = get(r, "posterior_log_mass_ratio.q50"), _true_log_ratio(r)
+        q50, t = get(r, "posterior_derived.log_mass_ratio.q50"), _true_log_ratio(r)
         if not finite(q50) or t == 0:
             continue
         j = int(np.searchsorted(HEAVIER_RATIO_EDGES, math.exp(abs(t)), side="right")) - 1
@@ -160,10 +160,10 @@ def _mass_ratio_section(records: list[dict], fig_dir: Path) -> Section:
     if not col:
         return no_data(title, PAPER["mass"], "no fitted video in which the two objects collided")
     fig, ax = new_figure()
-    post = [r for r in col if all(finite(get(r, f"posterior_log_mass_ratio.{k}")) for k in ("q05", "q50", "q95"))]
+    post = [r for r in col if all(finite(get(r, f"posterior_derived.log_mass_ratio.{k}")) for k in ("q05", "q50", "q95"))]
     if post:
         t = np.array([math.exp(_true_log_ratio(r)) for r in post])
-        q = {k: np.exp([r["posterior_log_mass_ratio"][k] for r in post]) for k in ("q05", "q50", "q95")}
+        q = {k: np.exp([r["posterior_derived"]["log_mass_ratio"][k] for r in post]) for k in ("q05", "q50", "q95")}
         ax.errorbar(t, q["q50"], yerr=[q["q50"] - q["q05"], q["q95"] - q["q50"]], fmt="o", ms=4, capsize=2,
                     alpha=0.7, label="posterior median, 90% interval")
     mp = [r for r in col if finite(r.get("mass_ratio")) and r["mass_ratio"] > 0]
