@@ -388,6 +388,20 @@ def plain_log_axes(ax, which: str = "xy") -> None:
         axis.set_minor_formatter(plain)
 
 
+def diagonal(ax, label: str) -> None:
+    """The line y = x across the axes' current range (inferred = true)."""
+    lo = min(ax.get_xlim()[0], ax.get_ylim()[0])
+    hi = max(ax.get_xlim()[1], ax.get_ylim()[1])
+    ax.plot([lo, hi], [lo, hi], color="0.5", lw=1, ls="--", label=label)
+
+
+def interval_points(ax, x, low, mid, high, label: str, **style) -> None:
+    """Points at `mid` with bars from `low` to `high` (e.g. a posterior median and its interval)."""
+    low, mid, high = (np.asarray(v, float) for v in (low, mid, high))
+    ax.errorbar(x, mid, yerr=[np.maximum(mid - low, 0), np.maximum(high - mid, 0)], ms=4, capsize=2, alpha=0.7,
+                label=label, **({"fmt": "o"} | style))
+
+
 def save_figure(fig, path: Path) -> str:
     """Write the figure as PNG, atomically; its file name."""
     fig.tight_layout()

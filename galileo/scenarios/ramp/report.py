@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...report import (NA, Section, correlation, finite, fitted, fmt, fmt_share, get, md_table, new_figure,
-                       no_data, plain_log_axes, save_figure, share)
+from ...report import (NA, Section, correlation, diagonal, finite, fitted, fmt, fmt_share, get, interval_points,
+                       md_table, new_figure, no_data, plain_log_axes, save_figure, share)
 
 # which is heavier: bins of the true ratio heavier/lighter (edges; the last bin is open)
 HEAVIER_RATIO_EDGES = (1.0, 2.0, 4.0)
@@ -164,15 +164,13 @@ def _mass_ratio_section(records: list[dict], fig_dir: Path) -> Section:
     if post:
         t = np.array([math.exp(_true_log_ratio(r)) for r in post])
         q = {k: np.exp([r["posterior_derived"]["log_mass_ratio"][k] for r in post]) for k in ("q05", "q50", "q95")}
-        ax.errorbar(t, q["q50"], yerr=[q["q50"] - q["q05"], q["q95"] - q["q50"]], fmt="o", ms=4, capsize=2,
-                    alpha=0.7, label="posterior median, 90% interval")
+        interval_points(ax, t, q["q05"], q["q50"], q["q95"], "posterior median, 90% interval")
     mp = [r for r in col if finite(r.get("mass_ratio")) and r["mass_ratio"] > 0]
     if mp:
         ax.plot([math.exp(_true_log_ratio(r)) for r in mp], [r["mass_ratio"] for r in mp], "x", color="tab:red",
                 label="MAP")
     plain_log_axes(ax)
-    lo, hi = ax.get_xlim()
-    ax.plot([lo, hi], [lo, hi], color="0.5", lw=1, ls="--", label="inferred = true")
+    diagonal(ax, "inferred = true")
     ax.axhline(1, color="0.8", lw=0.8)
     ax.axvline(1, color="0.8", lw=0.8)
     ax.set(xlabel="true m1/m2 (dimensionless)", ylabel="inferred m1/m2 (dimensionless)",
@@ -200,12 +198,9 @@ def _friction_section(records: list[dict], fig_dir: Path) -> Section:
     if post:
         t = np.array([r["truth"]["k1"] for r in post])
         q = {k: np.array([r["posterior"]["k1"][k] for r in post]) for k in ("q05", "q50", "q95")}
-        ax.errorbar(t, q["q50"], yerr=[q["q50"] - q["q05"], q["q95"] - q["q50"]], fmt="o", ms=4, capsize=2,
-                    alpha=0.7, label="posterior median, 90% interval")
+        interval_points(ax, t, q["q05"], q["q50"], q["q95"], "posterior median, 90% interval")
     ax.plot([r["truth"]["k1"] for r in rs], [r["map"]["k1"] for r in rs], "x", color="tab:red", label="MAP")
-    lo = min(ax.get_xlim()[0], ax.get_ylim()[0])
-    hi = max(ax.get_xlim()[1], ax.get_ylim()[1])
-    ax.plot([lo, hi], [lo, hi], color="0.5", lw=1, ls="--", label="inferred = true")
+    diagonal(ax, "inferred = true")
     ax.set(xlabel="true k1 (dimensionless)", ylabel="inferred k1 (dimensionless)", title="Friction of the ramp object")
     ax.legend(fontsize=8)
     png = save_figure(fig, fig_dir / "ramp_friction.png")

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...report import NA, Section, finite, fmt, get, md_table, new_figure, no_data, plain_log_axes, save_figure
+from ...report import (NA, Section, diagonal, finite, fmt, get, interval_points, md_table, new_figure, no_data,
+                       plain_log_axes, save_figure)
 from .experiments import SEED, convergence, summarise, which_is_heavier
 
 CHANCE = 0.5
@@ -43,12 +44,9 @@ def _mass_section(records: list[dict], summary: dict, fig_dir: Path) -> Section:
         t = np.array([r["truth"]["mass_kg"] for r in rs])
         m = np.array([r["mass_kg"] for r in rs])
         q = np.array([r.get("mass_kg_quartiles") or [mi, mi] for r, mi in zip(rs, m)], float)
-        ax.errorbar(t, m, yerr=[np.maximum(m - q[:, 0], 0), np.maximum(q[:, 1] - m, 0)], ms=4, capsize=2,
-                    alpha=0.7, label=f"{label} ({len(rs)} videos)", **style)
+        interval_points(ax, t, q[:, 0], m, q[:, 1], f"{label} ({len(rs)} videos)", **style)
     plain_log_axes(ax)
-    lo = min(ax.get_xlim()[0], ax.get_ylim()[0])
-    hi = max(ax.get_xlim()[1], ax.get_ylim()[1])
-    ax.plot([lo, hi], [lo, hi], color="0.5", lw=1, ls="--", label="predicted = true")
+    diagonal(ax, "predicted = true")
     ax.set(xlabel="true mass (kg)", ylabel="predicted mass (kg)", title="Mass: median over chains")
     ax.legend(fontsize=8)
     png = save_figure(fig, fig_dir / "splash_mass.png")
