@@ -153,11 +153,26 @@ def slurm_cluster(settings: dict):
 
 
 def local_cluster(workers: int | None):
+    import signal
+    import threading
+    import warnings
+
     from distributed import LocalCluster
 
     n = max(1, int(workers or os.cpu_count() or 1))
-    return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                        dashboard_address=DASHBOARD if _has_dashboard() else None, silence_logs=logging.ERROR)
+    # the worker processes start with Ctrl-C ignored (an ignored signal stays ignored in a child):
+    # Ctrl-C reaches the whole terminal's process group, and this process alone shuts the cluster
+    # down, instead of every worker printing its own traceback
+    main = threading.current_thread() is threading.main_thread()
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    try:
+        with warnings.catch_warnings():   # "port 8787 in use": the dashboard's address is printed anyway
+            warnings.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
+            return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                dashboard_address=DASHBOARD if _has_dashboard() else None, silence_logs=logging.ERROR)
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, before)
 
 
 def _has_dashboard() -> bool:

@@ -241,3 +241,25 @@ def test_out_must_name_a_folder(dataset, tmp_path, capsys):
         assert main(["experiment", str(dataset), "--out", str(out), "--quiet", *ARGS]) == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith("galileo: error:") and needle in err and "\n" not in err
+
+
+def test_ctrl_c_stops_the_run_in_one_line_and_keeps_its_records(dataset, tmp_path):
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "galileo", "experiment", str(dataset), "--out", str(out),
+                          "--workers", "1", "--quiet", *ARGS], start_new_session=True,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.time() + 240
+    while not list((out / "records").glob("*.json")) and time.time() < deadline:
+        time.sleep(0.2)
+    os.killpg(p.pid, signal.SIGINT)          # a terminal's Ctrl-C: the command and its workers
+    err = p.communicate(timeout=120)[1].decode()
+    assert p.returncode == 130 and err.strip() == "galileo: interrupted", err
+    assert list((out / "records").glob("*.json")) and not (out / "report.json").exists()
+    deadline = time.time() + 20
+    while True:
+        left = subprocess.run(["ps", "-g", str(p.pid), "-o", "pid=,args="], capture_output=True, text=True).stdout
+        if not left.strip() or time.time() > deadline:
+            break
+        time.sleep(0.5)
+    assert not left.strip(), f"processes outlived the run: {left}"

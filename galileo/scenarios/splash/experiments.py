@@ -100,7 +100,9 @@ def result_record(res) -> dict:
             "mass_kg": float(np.median(chain_mass_kg)),
             "mass_kg_quartiles": [float(q) for q in np.quantile(chain_mass_kg, [0.25, 0.75])],
             "final_density_g_cm3": [float(x) for x in final_density],
-            "r_hat": diag["r_hat"], "chains": int(res.samples.shape[0]), "sweeps": int(res.samples.shape[1]),
+            "r_hat": diag["r_hat"], "ess_bulk": diag["ess"],
+            "posterior": {k: {q: v[q] for q in ("q05", "q25", "q50", "q75", "q95")} for k, v in res.posterior().items()},
+            "chains": int(res.samples.shape[0]), "sweeps": int(res.samples.shape[1]),
             "seconds": float(res.timing_s["wall"])}
 
 
