@@ -155,7 +155,6 @@ def slurm_cluster(settings: dict):
 def local_cluster(workers: int | None):
     import signal
     import threading
-    import warnings
 
     from distributed import LocalCluster
 
@@ -166,10 +165,8 @@ def local_cluster(workers: int | None):
     main = threading.current_thread() is threading.main_thread()
     before = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
     try:
-        with warnings.catch_warnings():   # "port 8787 in use": the dashboard's address is printed anyway
-            warnings.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
-            return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                dashboard_address=DASHBOARD if _has_dashboard() else None, silence_logs=logging.ERROR)
+        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                            dashboard_address=DASHBOARD if _has_dashboard() else None, silence_logs=logging.ERROR)
     finally:
         if main:
             signal.signal(signal.SIGINT, before)
@@ -208,7 +205,11 @@ def open_client(workers: int | None = None, scheduler: str | None = None, slurm:
         else:
             import dask
 
-            with dask.config.set(CLUSTER_CONFIG):
+            import warnings
+
+            with dask.config.set(CLUSTER_CONFIG), warnings.catch_warnings():
+                # "port 8787 in use": the dashboard's address is printed anyway
+                warnings.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
                 if slurm is not None:
                     cluster, jobs = slurm_cluster(slurm)
                     cluster.scale(jobs=jobs)

@@ -186,7 +186,11 @@ def test_bad_dataset_index_is_one_line(tmp_path, capsys, what, needle):
 def test_slurm_cluster_is_built_from_the_documented_settings():
     settings = {"queue": "normal", "account": "lab", "cores": 8, "memory": "16GB", "walltime": "01:30:00",
                 "jobs": 3, "job_extra_directives": ["--exclusive"]}
-    cluster, jobs = batch.slurm_cluster(settings)
+    import warnings
+
+    with warnings.catch_warnings():     # its scheduler's dashboard may find 8787 taken by another test's cluster
+        warnings.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
+        cluster, jobs = batch.slurm_cluster(settings)
     try:
         script = cluster.job_script()
     finally:
