@@ -121,6 +121,20 @@ def main(argv=None) -> int:
     return run_reporting_errors("app", lambda: run(args))
 
 
+def port_is_free(host: str, port: int) -> None:
+    """Refuse a port another program holds (the viewer would otherwise move to the next one)."""
+    import socket
+
+    from galileo.errors import GalileoError
+
+    with socket.socket() as s:
+        try:
+            s.bind((host, port))
+        except OSError as e:
+            raise GalileoError(f"port {port} on {host} is taken (another app running?); choose another with --port "
+                               f"({e.strerror or e})") from None
+
+
 def run(args) -> int:
     import numpy as np
 
@@ -134,6 +148,7 @@ def run(args) -> int:
     from ui.viewer import Viewer
 
     mode, url = _rerun_mode(args)
+    port_is_free(args.host, args.port)     # before tracking and the chains, which take a while
     model = None
     if args.session and (args.init != "prior" or args.model):
         raise GalileoError("--init and --model start a new session's chains; a reopened session keeps its own")
@@ -221,8 +236,13 @@ def run(args) -> int:
                 log_convergence(payload["sweep"])
     ctrl.add_listener(on_controller)
 
-    viewer = Viewer(ctrl, ctrl.likelihood_scene, tracks, video, host=args.host, port=args.port,
-                    target_sweeps=args.sweeps)
+    try:
+        viewer = Viewer(ctrl, ctrl.likelihood_scene, tracks, video, host=args.host, port=args.port,
+                        target_sweeps=args.sweeps)
+    except GalileoError:     # the port was taken since the check: nothing started yet, close what is open
+        ctrl.close()
+        logger.close()
+        raise
     logger.log_simulation(viewer.traj)
     print(f"viewer: {viewer.url}")
     if logger.web_url:

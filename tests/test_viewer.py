@@ -162,3 +162,26 @@ def test_camera_pose_reprojects_like_the_video_camera(setup):
     uv = np.array([f * p_cam[0] / p_cam[2] + cam.width_px / 2, f * p_cam[1] / p_cam[2] + cam.height_px / 2])
     np.testing.assert_allclose(uv, cam.project(p_world), atol=1e-6)
     assert aspect == pytest.approx(4 / 3)
+
+
+def test_a_taken_port_is_refused_not_silently_replaced(setup, capsys):
+    """Issue 14, defect 10: viser moves to the next free port without a word; the viewer and
+    app.py refuse instead (one line, exit 2)."""
+    import socket
+
+    from galileo.errors import GalileoError
+    from ui.viewer import Viewer
+
+    ctrl, v = setup
+    taken = int(v.url.rsplit(":", 1)[1])
+    with pytest.raises(GalileoError, match=f"port {taken} on 127.0.0.1 is taken"):
+        Viewer(ctrl, ctrl.likelihood_scene, v.tracks, v.video, port=taken)
+    import app
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        busy = s.getsockname()[1]
+        assert app.main(["--port", str(busy)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("app: error: port") and "is taken" in err[-1]

@@ -200,6 +200,13 @@ class Viewer:
         self._y_axis_px = 0
         self._legend = True
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        if port and self.server.get_port() != port:
+            # viser moves on to the next free port without a word: a user's bookmark, firewall rule
+            # or tunnel would then reach another program, or nothing
+            self.server.stop()
+            from galileo.errors import GalileoError
+
+            raise GalileoError(f"port {port} on {host} is taken (another app running?); choose another with --port")
         self.url = f"http://{host}:{self.server.get_port()}"
         self._build_scene()
         self._build_gui()
