@@ -312,6 +312,72 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_scene(args: argparse.Namespace) -> int:
+    """galileo scene: a ramp scene file from four points clicked on the video's first frame."""
+    import dataclasses
+    import math
+
+    import numpy as np
+
+    from .scenarios.ramp.clicks import camera_from_clicks
+    from .scenarios.ramp.scene import Ramp, Scene, default_scene
+    from .shapes import Shape
+    from .video import read_frames
+
+    def numbers(text: str, n: int, what: str) -> list[float]:
+        try:
+            vals = [float(x) for x in text.replace(",", " ").split()]
+        except ValueError:
+            vals = []
+        if len(vals) != n or not all(math.isfinite(v) for v in vals):
+            raise GalileoError(f"{what}: expected {n} numbers, got {text!r}")
+        return vals
+
+    uv = numbers(args.ramp_px, 8, "--ramp-px (four points u,v: upper near, upper far, foot far, foot near)")
+    for flag, v in (("--ramp-length-m", args.ramp_length_m), ("--ramp-width-m", args.ramp_width_m),
+                    ("--upper-at-m", args.upper_at_m), ("--focal-px", args.focal_px), ("--start-m", args.start_m),
+                    ("--target-distance-m", args.target_distance_m)):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise GalileoError(f"{flag} must be a positive number, got {v}")
+    if not (math.isfinite(args.angle_deg) and 0 < args.angle_deg < 60):
+        raise GalileoError(f"--angle-deg must be in (0, 60), got {args.angle_deg}")
+    if args.upper_at_m is not None and args.upper_at_m > args.ramp_length_m:
+        raise GalileoError(f"--upper-at-m {args.upper_at_m} is beyond the ramp's length {args.ramp_length_m}")
+    n_frames, size = 0, None
+    for frame in read_frames(args.video):
+        size = size or (frame.shape[1], frame.shape[0])
+        n_frames += 1
+    if not n_frames:
+        raise GalileoError(f"video {args.video} has no decodable frames")
+    from .video import _stream_info
+
+    fps = _stream_info(args.video)[0]
+    cam, err = camera_from_clicks(np.array(uv).reshape(4, 2), width_px=size[0], height_px=size[1], fps=fps,
+                                  n_frames=n_frames, length_m=args.ramp_length_m, width_m=args.ramp_width_m,
+                                  angle_deg=args.angle_deg, upper_at_m=args.upper_at_m, focal_px=args.focal_px)
+    scene = default_scene(args.angle_deg, target=args.target, camera=cam,
+                          distance_m=args.target_distance_m if args.target_distance_m is not None else 0.1)
+    start_m = Scene.start_units * Scene.unit_m if args.start_m is None else args.start_m
+    scene = dataclasses.replace(scene, ramp=Ramp(args.angle_deg, args.ramp_length_m, args.ramp_width_m),
+                                start_units=start_m / scene.unit_m)
+    if args.target_size_m is not None:
+        if scene.target is None:
+            raise GalileoError("--target-size-m needs --target cardboard|foam")
+        size_m = numbers(args.target_size_m, 3, "--target-size-m (x,y,z in metres)")
+        if not all(v > 0 for v in size_m):
+            raise GalileoError(f"--target-size-m: sizes must be positive, got {args.target_size_m}")
+        tgt = dataclasses.replace(scene.target, shape=Shape("box", tuple(size_m)))
+        scene = dataclasses.replace(scene, objects=(scene.ramp_object, tgt))
+    scene.validate()
+    scene.save(args.out)
+    print(f"wrote {args.out}: focal {cam.K[0, 0]:.1f} px{' (estimated)' if args.focal_px is None else ''}, camera "
+          f"{np.linalg.norm(cam.position_in_world):.2f} m from the ramp's foot, reprojection error {err:.2f} px")
+    if args.start_m is None:
+        print(f"note: the object's start is taken as {start_m:.2f} m up the ramp (the paper's 30 units); "
+              "give --start-m, measured from the foot to the object's centre")
+    return 0
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from . import registry
     from .calibrate import coverage_on_videos, sbc
@@ -593,6 +659,28 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--recognition", metavar="EVAL_DIR",
                     help="add the recognition model's evaluation (the --out folder of `galileo recognize eval`)")
     rp.set_defaults(func=cmd_report)
+
+    sc = sub.add_parser("scene", help="a ramp scene file for your own video, from four points of the ramp's top "
+                        "surface clicked on its first frame and the ramp's size and angle")
+    sc.add_argument("video", help="your video of the ramp")
+    sc.add_argument("--ramp-px", required=True, metavar='"u,v u,v u,v u,v"',
+                    help="four points of the ramp's top surface in the first frame (pixels), in the order upper "
+                         "near, upper far, foot far, foot near (near: the side edge closer to the camera)")
+    sc.add_argument("--upper-at-m", type=float, default=None,
+                    help="how far up the ramp (from the foot) the two upper points are (default: its length, the "
+                         "upper corners)")
+    sc.add_argument("--ramp-length-m", type=float, required=True)
+    sc.add_argument("--ramp-width-m", type=float, required=True)
+    sc.add_argument("--angle-deg", type=float, required=True, help="the ramp's angle to the ground")
+    sc.add_argument("--start-m", type=float, default=None,
+                    help="how far up the ramp the object starts, from the foot to its centre (default 0.6)")
+    sc.add_argument("--focal-px", type=float, default=None, help="the focal length (default: estimated from the points)")
+    sc.add_argument("--target", choices=["none", "cardboard", "foam"], default="none")
+    sc.add_argument("--target-distance-m", type=float, default=None,
+                    help="from the ramp's foot to the target's near face (default 0.1)")
+    sc.add_argument("--target-size-m", metavar="X,Y,Z", default=None, help="the target box's size (default: the kind's)")
+    sc.add_argument("--out", required=True, help="scene JSON for galileo track and galileo infer")
+    sc.set_defaults(func=cmd_scene)
 
     cb = sub.add_parser("calibrate", help="simulation-based calibration (rank histograms, ECDF tests, interval "
                         "coverage) on simulated observations, or interval coverage on a rendered dataset")

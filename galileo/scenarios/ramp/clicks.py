@@ -1,0 +1,119 @@
+"""A ramp scene from four points clicked on the video's first frame (`galileo scene`).
+
+The user marks four points of the ramp board's top surface, in this order: upper near, upper
+far, foot far, foot near ("near": the side edge closer to the camera). The foot points are the
+foot's corners; the upper points lie on the two side edges `upper_at_m` up the ramp from the
+foot (by default the ramp's length: its upper corners). With the ramp's length, width and
+angle these four points are known in the world frame (the foot's centre at the origin, the
+ramp rising towards -x, the camera on the -y side), so:
+
+* without a focal length: the plane's homography gives it, from the two constraints that its
+  first two columns, mapped back through K, are orthogonal and of equal length (principal
+  point at the image centre, square pixels);
+* the camera's pose: OpenCV's planar PnP (IPPE) with that K.
+
+The reprojection error (pixels) says how well the clicks agree with the stated geometry.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...camera import Camera
+from ...errors import GalileoError
+
+ORDER = ("upper near", "upper far", "foot far", "foot near")
+MIN_SIDE_PX = 4.0          # two clicks closer than this are one point
+MIN_AREA_PX2 = 100.0       # a quadrilateral thinner than this is a line, not a ramp
+MIN_CORNER_SINE = 0.02     # a corner straighter than this (about 1 degree off a line) is no corner
+MAX_REPROJECTION_PX = 25.0  # clicks farther than this from the stated geometry are refused
+
+
+def ramp_points_in_world(length_m: float, width_m: float, angle_deg: float, upper_at_m: float | None = None) -> np.ndarray:
+    """The four points (ORDER) of the ramp's top surface in the world frame, (4, 3) metres."""
+    d = length_m if upper_at_m is None else upper_at_m
+    a = math.radians(angle_deg)
+    up = np.array([-math.cos(a), 0.0, math.sin(a)])      # up the ramp, along the surface
+    near, far = np.array([0.0, -width_m / 2, 0.0]), np.array([0.0, width_m / 2, 0.0])
+    return np.array([d * up + near, d * up + far, far, near])
+
+
+def _cross(a, b) -> float:
+    """The z component of the cross product of two image vectors."""
+    return float(a[0] * b[1] - a[1] * b[0])
+
+
+def check_clicks(uv: np.ndarray, width_px: int, height_px: int) -> np.ndarray:
+    """The four clicks as a (4, 2) array, or a GalileoError saying what is wrong with them."""
+    uv = np.asarray(uv, float)
+    if uv.shape != (4, 2) or not np.isfinite(uv).all():
+        raise GalileoError("give four points u,v (pixels): upper near, upper far, foot far, foot near")
+    for name, (u, v) in zip(ORDER, uv):
+        if not (0 <= u < width_px and 0 <= v < height_px):
+            raise GalileoError(f"the {name} point ({u:g}, {v:g}) is outside the {width_px}x{height_px} frame")
+    for i in range(4):
+        for j in range(i + 1, 4):
+            if np.linalg.norm(uv[i] - uv[j]) < MIN_SIDE_PX:
+                raise GalileoError(f"the {ORDER[i]} and {ORDER[j]} points are the same point")
+    # a convex quadrilateral in the stated order: every turn the same way, and its area not nil
+    turns = [_cross(uv[(i + 1) % 4] - uv[i], uv[(i + 2) % 4] - uv[(i + 1) % 4]) for i in range(4)]
+    area = 0.5 * abs(sum(_cross(uv[i], uv[(i + 1) % 4]) for i in range(4)))
+    # |turn| / (the two sides' lengths) is the sine of the angle at a corner
+    sines = [abs(t) / (np.linalg.norm(uv[(i + 1) % 4] - uv[i]) * np.linalg.norm(uv[(i + 2) % 4] - uv[(i + 1) % 4]))
+             for i, t in enumerate(turns)]
+    if min(sines) > MIN_CORNER_SINE and not (all(t > 0 for t in turns) or all(t < 0 for t in turns)):
+        raise GalileoError("the four points cross over: give them in the order upper near, upper far, foot far, "
+                           "foot near (going round the ramp's top surface)")
+    if area < MIN_AREA_PX2 or min(sines) <= MIN_CORNER_SINE:
+        raise GalileoError("three of the four points are on one line: click the ramp's four corners (or the "
+                           "points on its side edges), in the order upper near, upper far, foot far, foot near")
+    return uv
+
+
+def focal_from_homography(h: np.ndarray, cx: float, cy: float) -> float:
+    """The focal length (pixels) for which the plane homography `h` (plane coordinates along
+    and across the ramp -> pixels) has orthogonal columns of equal length through K."""
+    g = np.array([[1, 0, -cx], [0, 1, -cy], [0, 0, 1.0]]) @ h
+    h1, h2 = g[:, 0], g[:, 1]
+    # (h1x h2x + h1y h2y) w + h1z h2z = 0;  (|h1xy|^2 - |h2xy|^2) w + (h1z^2 - h2z^2) = 0;  w = 1/f^2
+    a = np.array([h1[0] * h2[0] + h1[1] * h2[1], h1[0] ** 2 + h1[1] ** 2 - h2[0] ** 2 - h2[1] ** 2])
+    b = np.array([h1[2] * h2[2], h1[2] ** 2 - h2[2] ** 2])
+    w = -float(a @ b) / float(a @ a)
+    if not w > 0 or abs(float(b @ b)) < 1e-12 * float(a @ a) * w * w:
+        raise GalileoError("cannot estimate the focal length from these points (the ramp is seen face-on or the "
+                           "points disagree with its size): give --focal-px")
+    return 1.0 / math.sqrt(w)
+
+
+def camera_from_clicks(uv, *, width_px: int, height_px: int, fps: float, n_frames: int, length_m: float,
+                       width_m: float, angle_deg: float, upper_at_m: float | None = None,
+                       focal_px: float | None = None) -> tuple[Camera, float]:
+    """(camera, RMS reprojection error in pixels) from the four clicks (see the module)."""
+    import cv2
+
+    uv = check_clicks(uv, width_px, height_px)
+    world = ramp_points_in_world(length_m, width_m, angle_deg, upper_at_m)
+    cx, cy = width_px / 2, height_px / 2
+    if focal_px is None:
+        d = length_m if upper_at_m is None else upper_at_m
+        plane = np.array([[d, -width_m / 2], [d, width_m / 2], [0, width_m / 2], [0, -width_m / 2]], float)
+        h, _ = cv2.findHomography(plane, uv)
+        if h is None:
+            raise GalileoError("these four points give no perspective view of a rectangle: check their order")
+        focal_px = focal_from_homography(h, cx, cy)
+    k = np.array([[focal_px, 0, cx], [0, focal_px, cy], [0, 0, 1.0]])
+    ok, rvec, tvec = cv2.solvePnP(world, uv, k, None, flags=cv2.SOLVEPNP_IPPE)
+    if not ok:
+        raise GalileoError("no camera pose fits these points")
+    r, _ = cv2.Rodrigues(rvec)
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = r, tvec.ravel()
+    cam = Camera(k, m, int(width_px), int(height_px), float(fps), int(n_frames))
+    if not (world @ r.T + tvec.ravel())[:, 2].min() > 0:
+        raise GalileoError("the fitted camera sees the ramp from behind: check the points' order")
+    err = float(np.sqrt(np.mean(np.sum((cam.project(world) - uv) ** 2, axis=1))))
+    if err > MAX_REPROJECTION_PX:
+        raise GalileoError(f"the points disagree with the stated ramp by {err:.1f} px (more than "
+                           f"{MAX_REPROJECTION_PX:g}): check the order, the length, width, angle and --upper-at-m")
+    return cam, err
