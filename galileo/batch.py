@@ -334,7 +334,10 @@ class Outcome:
     resumed: int
     wall_s: float
     workers: int
-    failed: list[str] = field(default_factory=list)
+
+    @property
+    def failed(self) -> list[str]:
+        return [r["video"] for r in self.records if r.get("status") == "failed"]
 
 
 def run_jobs(client, jobs: list[Job], store: RecordStore, *, granularity: str = "videos", progress: bool = True,
@@ -367,7 +370,7 @@ def run_jobs(client, jobs: list[Job], store: RecordStore, *, granularity: str = 
                 running.add(f)
 
         refill()
-        failed = []
+        failed = 0
         for f in running:
             job = by_key.pop(f.key)
             try:
@@ -380,18 +383,16 @@ def run_jobs(client, jobs: list[Job], store: RecordStore, *, granularity: str = 
             store.save(job.name, rec)
             records[job.name] = rec
             if rec.get("status") == "failed":
-                failed.append(job.name)
-                bar.set_postfix_str(f"{len(failed)} failed", refresh=False)
+                failed += 1
+                bar.set_postfix_str(f"{failed} failed", refresh=False)
             bar.update(1)
             refill()
-    return Outcome([records[j.name] for j in jobs], resumed, time.perf_counter() - t0, n_workers(client), failed)
+    return Outcome([records[j.name] for j in jobs], resumed, time.perf_counter() - t0, n_workers(client))
 
 
 # -- the experiments over a dataset ---------------------------------------------------------------------
 
 def experiment_jobs(folder: Path, scenario: str, entries: list[dict], config) -> list[Job]:
-    from .runner import RunConfig  # noqa: F401 - config is one
-
     fn = registry.get(scenario).optional_part("experiments", "run_video")
     if fn is None:
         raise GalileoError(f"scenario {scenario!r} has no experiments")

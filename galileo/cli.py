@@ -165,7 +165,7 @@ def cmd_infer(args: argparse.Namespace) -> int:
 
 def infer_folder(args: argparse.Namespace) -> int:
     """galileo infer FOLDER: every video of the folder on Dask (galileo.batch.infer_folder)."""
-    from . import batch
+    from . import batch, registry
     from .runner import RunConfig
 
     for flag, given in (("--tracks", args.tracks), ("--init recognition", args.init == "recognition"),
@@ -176,8 +176,7 @@ def infer_folder(args: argparse.Namespace) -> int:
         raise GalileoError("--out FOLDER is needed for a folder of videos (one result file per video)")
     batch.out_folder(Path(args.out))
     videos = batch.folder_videos(args.video, args.scene)
-    scene = registry_scene(videos[0][2])
-    protocol = scene[1].protocol
+    protocol = registry.of(registry.load_scene(videos[0][2])).protocol
     cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
                     sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps, seed=args.seed, workers=1,
                     noise=args.sigma, speedups=not args.no_speedups, narrow=args.narrow, broad=args.broad,
@@ -198,14 +197,6 @@ def infer_folder(args: argparse.Namespace) -> int:
     if done.failed:
         print(f"galileo: warning: {len(done.failed)} videos failed: {', '.join(done.failed[:5])}", file=sys.stderr)
     return 0
-
-
-def registry_scene(path):
-    """(scene, scenario) of a scene file."""
-    from . import registry
-
-    scene = registry.load_scene(path)
-    return scene, registry.of(scene)
 
 
 def priors_arg(text: str | None) -> dict | None:
