@@ -305,14 +305,11 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def cmd_scene(args: argparse.Namespace) -> int:
     """galileo scene: a ramp scene file from four points clicked on the video's first frame."""
-    import dataclasses
     import math
 
     import numpy as np
 
-    from .scenarios.ramp.clicks import camera_from_clicks
-    from .scenarios.ramp.scene import Ramp, Scene, default_scene
-    from .shapes import Shape
+    from .scenarios.ramp.clicks import scene_from_clicks
     from .video import read_frames
 
     def numbers(text: str, n: int, what: str) -> list[float]:
@@ -325,6 +322,7 @@ def cmd_scene(args: argparse.Namespace) -> int:
         return vals
 
     uv = numbers(args.ramp_px, 8, "--ramp-px (four points u,v: upper near, upper far, foot far, foot near)")
+    size_m = None if args.target_size_m is None else numbers(args.target_size_m, 3, "--target-size-m (x,y,z in metres)")
     for flag, v in (("--ramp-length-m", args.ramp_length_m), ("--ramp-width-m", args.ramp_width_m),
                     ("--upper-at-m", args.upper_at_m), ("--focal-px", args.focal_px), ("--start-m", args.start_m),
                     ("--target-distance-m", args.target_distance_m)):
@@ -334,6 +332,8 @@ def cmd_scene(args: argparse.Namespace) -> int:
         raise GalileoError(f"--angle-deg must be in (0, 60), got {args.angle_deg}")
     if args.upper_at_m is not None and args.upper_at_m > args.ramp_length_m:
         raise GalileoError(f"--upper-at-m {args.upper_at_m} is beyond the ramp's length {args.ramp_length_m}")
+    if size_m is not None and args.target == "none":
+        raise GalileoError("--target-size-m needs --target cardboard|foam")
     n_frames, size = 0, None
     for frame in read_frames(args.video):
         size = size or (frame.shape[1], frame.shape[0])
@@ -343,23 +343,13 @@ def cmd_scene(args: argparse.Namespace) -> int:
     from .video import _stream_info
 
     fps = _stream_info(args.video)[0]
-    cam, err = camera_from_clicks(np.array(uv).reshape(4, 2), width_px=size[0], height_px=size[1], fps=fps,
-                                  n_frames=n_frames, length_m=args.ramp_length_m, width_m=args.ramp_width_m,
-                                  angle_deg=args.angle_deg, upper_at_m=args.upper_at_m, focal_px=args.focal_px)
-    scene = default_scene(args.angle_deg, target=args.target, camera=cam,
-                          distance_m=args.target_distance_m if args.target_distance_m is not None else 0.1)
-    start_m = Scene.start_units * Scene.unit_m if args.start_m is None else args.start_m
-    scene = dataclasses.replace(scene, ramp=Ramp(args.angle_deg, args.ramp_length_m, args.ramp_width_m),
-                                start_units=start_m / scene.unit_m)
-    if args.target_size_m is not None:
-        if scene.target is None:
-            raise GalileoError("--target-size-m needs --target cardboard|foam")
-        size_m = numbers(args.target_size_m, 3, "--target-size-m (x,y,z in metres)")
-        if not all(v > 0 for v in size_m):
-            raise GalileoError(f"--target-size-m: sizes must be positive, got {args.target_size_m}")
-        tgt = dataclasses.replace(scene.target, shape=Shape("box", tuple(size_m)))
-        scene = dataclasses.replace(scene, objects=(scene.ramp_object, tgt))
-    scene.validate()
+    scene, err = scene_from_clicks(np.array(uv).reshape(4, 2), width_px=size[0], height_px=size[1], fps=fps,
+                                   n_frames=n_frames, length_m=args.ramp_length_m, width_m=args.ramp_width_m,
+                                   angle_deg=args.angle_deg, upper_at_m=args.upper_at_m, focal_px=args.focal_px,
+                                   start_m=args.start_m, target=args.target,
+                                   target_distance_m=args.target_distance_m, target_size_m=size_m)
+    cam = scene.camera
+    start_m = scene.start_distance_m()
     scene.save(args.out)
     print(f"wrote {args.out}: focal {cam.K[0, 0]:.1f} px{' (estimated)' if args.focal_px is None else ''}, camera "
           f"{np.linalg.norm(cam.position_in_world):.2f} m from the ramp's foot, reprojection error {err:.2f} px")

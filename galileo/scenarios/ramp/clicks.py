@@ -117,3 +117,97 @@ def camera_from_clicks(uv, *, width_px: int, height_px: int, fps: float, n_frame
         raise GalileoError(f"the points disagree with the stated ramp by {err:.1f} px (more than "
                            f"{MAX_REPROJECTION_PX:g}): check the order, the length, width, angle and --upper-at-m")
     return cam, err
+
+
+DEFAULT_TARGET_DISTANCE_M = 0.1   # from the ramp's foot to the target's near face
+
+
+def scene_from_clicks(uv, *, width_px: int, height_px: int, fps: float, n_frames: int, length_m: float,
+                      width_m: float, angle_deg: float, upper_at_m: float | None = None,
+                      focal_px: float | None = None, start_m: float | None = None, target: str = "none",
+                      target_distance_m: float | None = None, target_size_m=None):
+    """(scene, RMS reprojection error in pixels) for a user's video from the four clicks and
+    the ramp's measurements: the camera from `camera_from_clicks`, the ramp's size and angle,
+    the object starting `start_m` up the ramp (foot to centre; None: the paper's 30 units),
+    and the target if any. `galileo scene` and the browser's calibration both build it here.
+    Every number is checked; a wrong one is a GalileoError naming it."""
+    import dataclasses
+
+    from ...shapes import Shape
+    from .scene import Ramp, Scene, default_scene
+
+    for what, v in (("ramp length (m)", length_m), ("ramp width (m)", width_m), ("upper points' distance (m)",
+                    upper_at_m), ("focal length (px)", focal_px), ("start (m)", start_m),
+                    ("target distance (m)", target_distance_m)):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise GalileoError(f"{what} must be a positive number, got {v}")
+    if not (math.isfinite(angle_deg) and 0 < angle_deg < 60):
+        raise GalileoError(f"the ramp's angle must be in (0, 60) degrees, got {angle_deg}")
+    if upper_at_m is not None and upper_at_m > length_m:
+        raise GalileoError(f"the upper points' distance {upper_at_m} m is beyond the ramp's length {length_m} m")
+    if start_m is not None and start_m >= length_m:
+        raise GalileoError(f"the start {start_m} m up the ramp is beyond its length {length_m} m")
+    cam, err = camera_from_clicks(uv, width_px=width_px, height_px=height_px, fps=fps, n_frames=n_frames,
+                                  length_m=length_m, width_m=width_m, angle_deg=angle_deg, upper_at_m=upper_at_m,
+                                  focal_px=focal_px)
+    scene = default_scene(angle_deg, target=target, camera=cam,
+                          distance_m=DEFAULT_TARGET_DISTANCE_M if target_distance_m is None else target_distance_m)
+    start_m = Scene.start_units * Scene.unit_m if start_m is None else start_m
+    scene = dataclasses.replace(scene, ramp=Ramp(angle_deg, length_m, width_m), start_units=start_m / scene.unit_m)
+    if target_size_m is not None:
+        if scene.target is None:
+            raise GalileoError("a target size needs a target (cardboard or foam)")
+        size = np.asarray(target_size_m, float)
+        if size.shape != (3,) or not (np.isfinite(size).all() and (size > 0).all()):
+            raise GalileoError(f"the target's size must be three positive numbers x,y,z in metres, got {target_size_m}")
+        tgt = dataclasses.replace(scene.target, shape=Shape("box", tuple(float(v) for v in size)))
+        scene = dataclasses.replace(scene, objects=(scene.ramp_object, tgt))
+    scene.validate()
+    return scene, err
+
+
+GRID_STEP_M = 0.1          # the ground grid drawn over the frame
+GRID_HALF_M = 0.6
+
+
+def draw_overlay(frame_rgb: np.ndarray, scene, clicks=None) -> np.ndarray:
+    """The frame with the scene's ramp (top surface, yellow), the ground grid (white, 10 cm),
+    the object's start band (green: the object's length along the ramp at its start) and the
+    target (cyan) projected by the scene's camera, and the clicks (red, numbered 1-4)."""
+    import cv2
+
+    img = np.ascontiguousarray(frame_rgb[..., :3]).copy()
+    cam = scene.camera
+    h, w = img.shape[:2]
+    lw = max(1, round(max(w, h) / 400))
+
+    def poly(points_in_world, color, closed=True):
+        p = np.asarray(points_in_world, float)
+        depth = (p @ cam.world_to_camera[:3, :3].T + cam.world_to_camera[:3, 3])[:, 2]
+        if (depth <= 1e-3).any():
+            return
+        uv = np.round(cam.project(p) * 16).astype(np.int32)   # 4 bits of sub-pixel precision
+        cv2.polylines(img, [uv.reshape(-1, 1, 2)], closed, color, lw, cv2.LINE_AA, shift=4)
+
+    for x in np.arange(-GRID_HALF_M, GRID_HALF_M + 1e-9, GRID_STEP_M):
+        poly([[x, -GRID_HALF_M, 0], [x, GRID_HALF_M, 0]], (235, 235, 235), closed=False)
+        poly([[-GRID_HALF_M, x, 0], [GRID_HALF_M, x, 0]], (235, 235, 235), closed=False)
+    r = scene.ramp
+    poly(ramp_points_in_world(r.length_m, r.width_m, r.angle_deg), (255, 220, 0))
+    obj = scene.ramp_object
+    s, half = scene.start_distance_m(obj), obj.shape.size_m[0] / 2
+    band = ramp_points_in_world(s + half, r.width_m, r.angle_deg)[:2].tolist() + \
+        ramp_points_in_world(max(s - half, 0.0), r.width_m, r.angle_deg)[:2][::-1].tolist()
+    poly(band, (40, 220, 60))
+    tgt = scene.target
+    if tgt is not None:
+        x0, (sx, sy, sz) = tgt.distance_m, tgt.shape.size_m
+        for z in (0.0, sz):
+            poly([[x0, -sy / 2, z], [x0 + sx, -sy / 2, z], [x0 + sx, sy / 2, z], [x0, sy / 2, z]], (0, 200, 230))
+    if clicks is not None:
+        for i, (u, v) in enumerate(np.asarray(clicks, float)):
+            c = (int(round(u)), int(round(v)))
+            cv2.circle(img, c, 3 * lw + 2, (230, 30, 30), lw, cv2.LINE_AA)
+            cv2.putText(img, str(i + 1), (c[0] + 4 * lw, c[1] - 4 * lw), cv2.FONT_HERSHEY_SIMPLEX, 0.4 * lw,
+                        (230, 30, 30), lw, cv2.LINE_AA)
+    return img
