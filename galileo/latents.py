@@ -42,11 +42,14 @@ class Latent:
 
 @dataclass(frozen=True)
 class Noise:
-    """The likelihood's noise parameter (a standard deviation), e.g. sigma_mps = 0.05 m/s."""
+    """The likelihood's noise parameter (a standard deviation), e.g. sigma_mps = 0.05 m/s;
+    any value must lie in (limits[0], limits[1]] (a sigma of 1e-300 or 1e308 is no
+    measurement noise: the densities underflow or the data are ignored)."""
     name: str
     unit: str
     default: float
     doc: str = ""
+    limits: tuple[float, float] = (0.0, math.inf)
 
 
 def _json_num(x: float):
@@ -83,8 +86,11 @@ def check_bounds(latent: Latent, lo, hi) -> tuple[float, float]:
 
 def check_noise(noise: Noise, value) -> float:
     v = as_number(value, noise.name)
-    if v <= 0:
-        raise ValueError(f"{noise.name} must be > 0 {noise.unit}, got {v:g}")
+    low, high = noise.limits
+    if v <= low:
+        raise ValueError(f"{noise.name} must be > {low:g} {noise.unit}, got {v:g}")
+    if v > high:
+        raise ValueError(f"{noise.name} must be <= {high:g} {noise.unit}, got {v:g}")
     return v
 
 

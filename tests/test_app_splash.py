@@ -68,20 +68,22 @@ def test_the_object_stands_where_the_scored_motion_puts_it(splash_viewer):
 
 
 def test_gui_has_inputs_for_each_splash_latent_and_sigma_px(splash_viewer):
+    from ui.viewer import parse_numbers
+
     ctrl, v = splash_viewer
     names = ("area_cm2", "density_g_cm3", "drag_water", "start_step")
     assert ctrl.names == names
     st = ctrl.settings
     for n in names:
-        assert tuple(v.bound_inputs[n].value) == pytest.approx(st.bounds[n])
+        assert parse_numbers(v.bound_inputs[n].value, 2, n) == pytest.approx(st.bounds[n])
         lo, hi = st.bounds[n]
-        assert lo <= v.set_inputs[n].value <= hi      # "set chain's latents" starts inside the prior
+        assert lo <= parse_numbers(v.set_inputs[n].value, 1, n)[0] <= hi   # "set chain's latents" starts inside
     assert set(v.hist_plots) == set(names)
     # the splash's proposal widths differ per latent: one (narrow, broad) pair each
     assert isinstance(st.narrow, tuple) and v.narrow_input is None
     for j, n in enumerate(names):
-        assert tuple(v.width_inputs[n].value) == pytest.approx((st.narrow[j], st.broad[j]))
-    assert v.sigma_input.label == "sigma_px (px)" and v.sigma_input.value == st.noise == 1.0
+        assert parse_numbers(v.width_inputs[n].value, 2, n) == pytest.approx((st.narrow[j], st.broad[j]))
+    assert v.sigma_input.label == "sigma_px (px)" and float(v.sigma_input.value) == st.noise == 1.0
 
 
 def test_command_line_picks_the_demo_and_its_chains():

@@ -211,7 +211,7 @@ def test_viewer_and_rerun(observed, tmp_path):
     logger.log_video(video_path, tracks, tracks.fps)
     v = Viewer(ctrl, ctrl.likelihood_scene, tracks, video, port=free_port())
     try:
-        assert v.frustum is None and [h.name for h in v.object_handles] == ["/objects/ball"]
+        assert v.camera is None and [h.name for h in v.object_handles] == ["/objects/ball"]
         v.select_sample(1, 2)
         v.jump_to_map()
         chain, index, values, _ = ctrl.map()

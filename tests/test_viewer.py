@@ -185,3 +185,236 @@ def test_a_taken_port_is_refused_not_silently_replaced(setup, capsys):
         assert app.main(["--port", str(busy)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("app: error: port") and "is taken" in err[-1]
+
+
+# -- issue 14: the viewer's defects, server side (tests/test_viewer_browser.py drives a browser) --
+
+def test_log_likelihood_traces_are_below_the_best_on_an_asinh_scale(setup):
+    """Defect 1: the traces are each chain's log-likelihood less the best so far (every value
+    <= 0, the best exactly 0), on uPlot's asinh scale, and the axis is wide enough for the
+    lowest value's label with its minus sign."""
+    from ui.viewer import TRACE_ASINH_NATS, Y_AXIS_CHAR_PX, Y_AXIS_PAD_PX
+
+    ctrl, v = setup
+    v.refresh()
+    ids = ctrl.chain_ids()
+    ys = [np.asarray(d) for d in v.trace_plot.data[1:1 + len(ids)]]
+    best = max(float(np.max(ctrl.logliks(c))) for c in ids)
+    for c, y in zip(ids, ys):
+        ll = np.asarray(ctrl.logliks(c))
+        np.testing.assert_array_equal(y[:len(ll)], ll - best)
+    assert max(float(y.max()) for y in ys) == 0.0
+    assert v.trace_plot.scales["y"] == {"distr": 4, "asinh": TRACE_ASINH_NATS}
+    lowest = min(float(y.min()) for y in ys)
+    label = f"{lowest:,.0f}"
+    assert label.startswith("-") and v.trace_plot.axes[1]["size"] == Y_AXIS_CHAR_PX * len(label) + Y_AXIS_PAD_PX
+
+
+def test_settings_apply_exactly_what_was_typed_or_nothing(setup):
+    """Defect 2: a field's text is read as typed; a wrong one (with the reason and the bound) is
+    refused and nothing at all is applied, a right one applied exactly; the fields then show
+    the values in force."""
+    ctrl, v = setup
+    before = (dict(ctrl.settings.bounds), ctrl.settings.noise, ctrl.settings.narrow, ctrl.settings.broad,
+              ctrl.settings.broad_every)
+    wrong = [(v.sigma_input, "1e308", "sigma_mps must be <= 10 m/s"),
+             (v.sigma_input, "-1", "sigma_mps must be > 0.0001 m/s"),
+             (v.sigma_input, "nan", "sigma_mps: expected a finite number"),
+             (v.every_input, "2.5", "broad_every must be an integer >= 0"),
+             (v.narrow_input, "-0.5", "proposal widths must be > 0"),
+             (v.bound_inputs["m1_kg"], "abc", "m1_kg bounds (low, high): expected 2 numbers"),
+             (v.bound_inputs["m1_kg"], "0.001, 1e20", "m1_kg: bounds must be <= 100 kg")]
+    for field, text, reason in wrong:
+        old = field.value
+        field.value = text
+        msg = v.apply_settings()
+        assert msg.startswith("Not applied: ") and reason in msg, (text, msg)
+        assert 'data-ok="false"' in v.settings_message.content
+        field.value = old
+    # a valid edit beside a wrong one: neither applied
+    v.bound_inputs["m1_kg"].value = "0.002, 0.9"
+    v.bound_inputs["k1"].value = "0.5, 0.1"
+    msg = v.apply_settings()
+    assert "k1: the low bound (0.5) must be below the high bound (0.1)" in msg
+    assert (dict(ctrl.settings.bounds), ctrl.settings.noise, ctrl.settings.narrow, ctrl.settings.broad,
+            ctrl.settings.broad_every) == before
+    v.bound_inputs["k1"].value = "0, 0.95"
+    v.sigma_input.value = "5e-2"
+    msg = v.apply_settings()
+    assert msg.startswith("Applied: ") and 'data-ok="true"' in v.settings_message.content
+    assert ctrl.settings.bounds["m1_kg"] == (0.002, 0.9) and ctrl.settings.bounds["k1"] == (0.0, 0.95)
+    assert ctrl.settings.noise == 0.05
+    assert v.bound_inputs["m1_kg"].value == "0.002, 0.9" and v.sigma_input.value == "0.05"
+    assert "m1_kg [0.002, 0.9] kg" in v.settings_in_force.content
+    for n, (lo, hi) in before[0].items():     # put the priors back for the other tests
+        v.bound_inputs[n].value = f"{lo!r}, {hi!r}"
+    v.apply_settings()
+    assert dict(ctrl.settings.bounds) == before[0]
+
+
+def test_remove_chain_asks_and_keeps_the_selection_on_a_remaining_chain(demo_dir, tmp_path):
+    """Defect 3: Remove asks first (Confirm / Cancel); after removing the last chain the selection
+    moves to its neighbour, never to chain 0, and a second click does not remove another chain."""
+    ctrl, v = demo_viewer(demo_dir, tmp_path / "s", chains=4, seed=2, sweeps=2)
+    try:
+        v.follow_map.value = False
+        v.chain_dropdown.value = "3"
+        v._ask_remove()
+        assert v.remove_confirm.visible and v.remove_confirm.label == "Confirm: remove chain 3"
+        assert v._cancel_remove() == "nothing removed" and ctrl.chain_ids() == [0, 1, 2, 3]
+        v._ask_remove()
+        v.chain_dropdown.value = "1"     # the user looks at another chain before confirming
+        assert v._confirm_remove() == "removed chain 3 (its samples stay)"
+        assert ctrl.chain_ids() == [0, 1, 2] and v.chain_dropdown.value == "1"
+        v.chain_dropdown.value = "2"
+        v._ask_remove()
+        v._confirm_remove()
+        assert ctrl.chain_ids() == [0, 1] and v.chain_dropdown.value == "1"
+        v.refresh()
+        assert v.chain_dropdown.value == "1" and tuple(v.chain_dropdown.options) == ("0", "1")
+        assert v._confirm_remove() == "nothing removed" and ctrl.chain_ids() == [0, 1]
+    finally:
+        v.close()
+        ctrl.close()
+
+
+def test_steering_errors_are_shown_in_the_panel(setup):
+    """Defect 4: setting a latent outside its prior is refused with the reason in the Steering
+    panel (and nothing changes), not a server-side traceback."""
+    ctrl, v = setup
+    chain = v._chain()
+    before = ctrl.position(chain)
+    v.set_inputs["m1_kg"].value = "5"
+    v.set_button.value = True      # a click, from code
+    assert "Not done: m1_kg=5 is outside its prior bounds" in v.steer_message.content
+    assert 'data-ok="false"' in v.steer_message.content and ctrl.position(chain) == before
+    v.set_inputs["m1_kg"].value = "1e-3x"
+    v.set_button.value = True
+    assert "m1_kg: expected a number, got &#x27;1e-3x&#x27;" in v.steer_message.content
+
+
+def test_a_reopened_session_shows_its_chains(demo_dir, tmp_path):
+    """Defect 5: a session reopened (its chains paused) shows its status, traces, histograms and
+    progress at once, and the chain dropdown agrees with the sample shown (the MAP's)."""
+    from galileo.video import read_video
+    from conftest import free_port, load_demo_frozen
+    from ui.controller import Controller
+    from ui.viewer import Viewer
+
+    scene, tracks, _ = load_demo_frozen()
+    ctrl = Controller(scene, tracks, chains=2, seed=3, workers=1, session_dir=tmp_path / "s", sweeps=4)
+    ctrl.run_sweeps(4)
+    ctrl.close()
+    again = Controller.load(tmp_path / "s", workers=1, sweeps=4)
+    video, _ = read_video(demo_dir / "video.mp4")
+    v = Viewer(again, again.likelihood_scene, tracks, video, port=free_port())
+    try:
+        v.refresh()
+        chain, index, _, _ = again.map()
+        assert v.chain_dropdown.value == str(chain) and v.sample_text.content.startswith(
+            f"chain {chain}, sample {index}:")
+        assert "0 running / 2 chains, 8 sweeps" in v.status_text.content   # 2 x 4
+        assert "MAP (chain" in v.status_text.content
+        assert len(v.trace_plot.data[0]) == 4 and v.progress.value > 0
+        assert all(np.asarray(p.data[1]).sum() > 0 for p in v.hist_plots.values())
+    finally:
+        v.close()
+        again.close()
+
+
+def test_letterbox_puts_every_pixel_where_the_pinhole_view_of_the_window_does(setup):
+    """Defect 6: in a window of any shape, the padded frame stretched over the window and a
+    pinhole camera with the returned vertical fov and the window's aspect map every world point
+    to the same place: the video camera's projection, letterboxed."""
+    import trimesh
+
+    from ui.viewer import camera_pose, letterbox
+
+    _, v = setup
+    cam = v.scene.camera
+    frame = v.video[0]
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(-0.8, 0.3, 50), rng.uniform(-0.2, 0.2, 50), rng.uniform(0, 0.3, 50)])
+    uv = cam.project(pts)
+    wxyz, pos, _, _ = camera_pose(cam)
+    r = trimesh.transformations.quaternion_matrix(wxyz)[:3, :3]
+    for w, h in ((1600, 1000), (1024, 768), (800, 1000), (640, 480)):
+        img, fov = letterbox(frame, cam, w / h)
+        H, W = img.shape[:2]
+        assert abs(W / H - w / h) < 2.0 / min(W, H)      # the window's shape, to a pixel
+        # the pinhole view of the window (viser's camera: vertical fov, OpenCV axes)
+        pc = (pts - pos) @ r
+        f = (h / 2) / np.tan(fov / 2)
+        screen = np.column_stack([f * pc[:, 0] / pc[:, 2] + w / 2, f * pc[:, 1] / pc[:, 2] + h / 2])
+        # the video's pixel, through the padding (principal point at the centre) and the stretch
+        s = W / w
+        scale = H / (2 * np.tan(fov / 2) * cam.K[1, 1])     # canvas pixels per video pixel
+        canvas = np.column_stack([W / 2 + scale * (uv[:, 0] - cam.K[0, 2]), H / 2 + scale * (uv[:, 1] - cam.K[1, 2])])
+        np.testing.assert_allclose(canvas / [W, H] * [w, h], screen, atol=0.05 * max(1.0, s))
+        # and the frame's own pixels are there: its centre pixel's colour at that place
+        c = (int(round(W / 2 + scale * (frame.shape[1] / 2 - cam.K[0, 2]))),
+             int(round(H / 2 + scale * (frame.shape[0] / 2 - cam.K[1, 2]))))
+        assert np.abs(img[c[1], c[0]].astype(int) - frame[frame.shape[0] // 2, frame.shape[1] // 2]).max() <= 12
+    img, fov = letterbox(frame, cam, 1600 / 1000)      # wider than 4:3: black bars left and right
+    assert img[:, :5].max() == 0 and img[:, -5:].max() == 0
+    assert fov == pytest.approx(camera_pose(cam)[2], rel=1e-9)      # the video's own vertical fov
+
+
+def test_the_first_view_frames_the_scene(setup):
+    """Defect 7: a new browser's first view shows the whole ramp large (at least 40% of a
+    1600 x 1000 window's width), and the first sample shown is the MAP."""
+    import trimesh
+
+    ctrl, v = setup
+    ic = v.server.initial_camera
+    pos, look = np.asarray(ic.position, float), np.asarray(ic.look_at, float)
+    fwd = (look - pos) / np.linalg.norm(look - pos)
+    right = np.cross(fwd, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    ramp = np.concatenate([m.vertices for m in v.scenario.drawing(v.scene).static])
+    pc = np.column_stack([(ramp - pos) @ right, (ramp - pos) @ down, (ramp - pos) @ fwd])
+    assert (pc[:, 2] > 0).all()
+    f = (1000 / 2) / np.tan(ic.fov / 2)
+    u, w = f * pc[:, 0] / pc[:, 2] + 800, f * pc[:, 1] / pc[:, 2] + 500
+    assert u.min() >= 0 and u.max() <= 1600 and w.min() >= 0 and w.max() <= 1000   # all of it in view
+    assert u.max() - u.min() >= 0.4 * 1600
+    v.follow_map.value = True
+    v.refresh()
+    chain, index, _, _ = ctrl.map()
+    assert (v.selection.chain, v.selection.index) == (chain, index)
+
+
+def test_progress_is_never_full_while_chains_run_and_edits_are_marked_where_they_took_effect(demo_dir, tmp_path):
+    """Defect 8: Resume past the sweep target runs one more block (--sweeps) towards a new
+    target, so the bar shows progress towards it; an edit made while a late-added chain runs
+    alone is marked at the chains' sweep, not at the session's round count."""
+    from galileo.video import read_video
+    from conftest import free_port, load_demo_frozen
+    from ui.controller import Controller
+    from ui.viewer import Viewer, edit_sweep
+
+    scene, tracks, _ = load_demo_frozen()
+    ctrl = Controller(scene, tracks, chains=2, seed=4, workers=1, session_dir=tmp_path / "s", sweeps=3)
+    v = Viewer(ctrl, ctrl.likelihood_scene, tracks, read_video(demo_dir / "video.mp4")[0], port=free_port())
+    try:
+        v.follow_map.value = False
+        ctrl.run_sweeps(3)
+        assert ctrl.target_sweeps == 3 and all(not c["running"] for c in ctrl.status()["chains"].values())
+        ctrl.resume()
+        assert ctrl.target_sweeps == 6 and ctrl.events[-1]["detail"]["target"] == 6
+        ctrl.run_sweeps(1)
+        v.refresh()
+        assert 0 < v.progress.value < 100       # 4 of 6 sweeps
+        assert v.progress.value == pytest.approx(100 * 4 / 6, abs=0.5)
+        ctrl.run_sweeps(2)
+        ctrl.add_chains(1)        # a new chain runs its sweeps alone: the rounds outrun the sweeps
+        ctrl.run_sweeps(3)
+        ctrl.set_sigma(0.07)
+        ev = ctrl.events[-1]
+        assert ev["sweep"] == 9 and edit_sweep(ev) == 6
+        v.refresh()
+        assert "(edits at sweeps [6])" in v.trace_plot.title
+    finally:
+        v.close()
+        ctrl.close()

@@ -221,6 +221,7 @@ class Controller:
             self._moves0 = default_moves(scenario, lik_scene, tracks, latents, self._bounds_array(), self._settings)
         self._adapt_until = self._warmup
         self._target = sweeps
+        self._block = sweeps     # a resume past the target runs this many more sweeps
         self._until = until
         self._min_ess = until["min_ess"] if until else _check_min_ess(min_ess)
         if init is not None:
@@ -286,6 +287,7 @@ class Controller:
         self._warmup = 0                  # sweeps of width adaptation (dropped with the burn-in)
         self._adapt_until = 0             # chains adapt in their sweeps 1..this (0 once a user set the widths)
         self._target: int | None = None   # each running chain pauses (held) when it reaches this sweep
+        self._block: int | None = None    # sweeps a resume past the target runs on (None: on and on)
         self._until: dict | None = None   # {"until_rhat", "min_ess", "max_sweeps"}: run until converged
         self._min_ess = float(MIN_ESS)
         self._mv_n: np.ndarray = np.zeros(0, int)   # joint moves' proposals and acceptances, by move
@@ -652,8 +654,16 @@ class Controller:
             for c in changed:
                 self._chains[c].paused = paused
                 self._chains[c].held = False   # the user's pause, or running on past the target
+            detail = {"chains": changed}
+            if changed and not paused and self._until is None and self._target is not None and self._block:
+                # chains resumed at or past the sweep target run one more block (--sweeps) and pause
+                # again, so the target (and the progress towards it) always lies ahead of them
+                top = max(self._chains[c].sweep for c in changed)
+                if top >= self._target:
+                    self._target = top + self._block
+                    detail["target"] = self._target
             if changed:
-                self._event("pause" if paused else "resume", {"chains": changed})
+                self._event("pause" if paused else "resume", detail)
                 if paused:
                     self._until_step()   # the last running chain stopped: the others may wait for a verdict
         self._steer(apply)
@@ -1076,6 +1086,8 @@ class Controller:
         self._events = events[:n_events]
         self.moves_set, self._warmup, self._moves0, self._adapt_until = moves_set, warmup, moves0, adapt_until
         self._target, self._until = target, until
+        block = sweeps if sweeps is not None else detail.get("sweeps")
+        self._block = block if isinstance(block, int) and block >= 1 else None
         if until is not None:
             self._min_ess = until["min_ess"]
         if isinstance(detail.get("init"), dict):

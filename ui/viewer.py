@@ -38,6 +38,8 @@ from viser import uplot
 from galileo import registry
 from galileo.camera import Camera
 from galileo.datatypes import Tracks, Trajectory
+from galileo.errors import GalileoError
+from galileo.latents import as_number, check_bounds, check_noise, check_widths
 from galileo.results import burn_in
 
 log = logging.getLogger(__name__)
@@ -47,9 +49,51 @@ NOT_EDITS = ("init", "pause", "resume", "run_until", "until_check")   # change n
 CONVERGED_COLOR = "#2b8a3e"     # a latent whose R-hat and ESS hold
 RHAT_COLOR = "#c92a2a"          # R-hat above the target, or not computable yet
 ESS_COLOR = "#e8590c"           # R-hat holds, too few effective draws
-SMALL_SCENE_M = 0.5    # scenes smaller than this get an initial view close enough to see them
+FIRST_VIEW_FOV_DEG = 50.0    # the first view: this wide, the scene filling FIRST_VIEW_FILL of it
+FIRST_VIEW_FILL = 0.85
+FIRST_VIEW_ASPECT = 4 / 3    # the narrowest window the first view plans for
+# the log-likelihood traces: each chain's log-likelihood minus the best so far, on an asinh
+# scale linear within this many nats of the best (converged chains' spread) and logarithmic
+# beyond it (a chain stuck 1,000 nats below does not flatten the others into one line)
+TRACE_ASINH_NATS = 10.0
+TRACE_TITLE = "log-likelihood minus the best so far (nats; asinh scale)"
+Y_AXIS_CHAR_PX, Y_AXIS_PAD_PX = 9, 30   # uPlot's 12 px axis font: digits and "-" about 7 px, ticks 10 px
+BACKGROUND_MAX_PX = 1920     # the letterboxed camera-view background, at most this wide
 CHAIN_COLORS = ["#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#bfef45",
                 "#469990", "#9a6324", "#800000", "#808000", "#000075", "#a9a9a9", "#e6beff", "#fabebe"]
+
+
+def fit_distance(pts: np.ndarray, centre: np.ndarray, direction: np.ndarray, fov: float, aspect: float,
+                 fill: float) -> float:
+    """How far from `centre` along `direction` (unit, pointing from the scene to the camera) a
+    camera looking at `centre` with vertical `fov` must stand for `pts` to span `fill` of the
+    view (of its height or, at `aspect`, its width, whichever is reached first)."""
+    fwd = -direction
+    right = np.cross(fwd, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right) or 1.0
+    down = np.cross(fwd, right)
+    t = np.tan(fov / 2)
+
+    def extent(d: float) -> float:
+        rel = pts - (centre + d * direction)
+        z = rel @ fwd
+        if (z <= 1e-6).any():
+            return np.inf
+        x, y = (rel @ right) / z / (t * aspect), (rel @ down) / z / t
+        return max(float(np.abs(x).max()), float(np.abs(y).max()))
+
+    lo, hi = 1e-3, 1e3
+    for _ in range(60):         # the extent falls as the camera backs off: bisect on log distance
+        mid = np.sqrt(lo * hi)
+        lo, hi = (mid, hi) if extent(mid) > fill else (lo, mid)
+    return float(hi)
+
+
+def edit_sweep(event: dict) -> int:
+    """The sweep an edit is marked at: the last sweep the most advanced chain ran before it
+    (the chains' own count, which a session's rounds outrun when only some chains run)."""
+    sweeps = [v for v in (event.get("chain_sweeps") or {}).values() if isinstance(v, (int, float))]
+    return int(max(sweeps)) if sweeps else int(event["sweep"])
 
 
 def _wxyz_from_matrix(r: np.ndarray) -> np.ndarray:
@@ -158,9 +202,58 @@ def _per_latent(width, k: int) -> tuple[float, ...]:
     return tuple(float(w) for w in width) if isinstance(width, tuple) else (float(width),) * k
 
 
-def _step(width: float) -> float:
-    """An input step that shows a proposal width to its first digit (0.0005 -> 0.0001)."""
-    return float(10.0 ** np.floor(np.log10(width))) if width > 0 else 0.001
+def _num(x: float) -> str:
+    """A number as the text fields show it: every digit it has (0.05, 1e-05, 30), no more."""
+    x = float(x)
+    return str(int(x)) if x.is_integer() and abs(x) < 1e15 else repr(x)
+
+
+def parse_numbers(text, n: int, what: str) -> tuple[float, ...]:
+    """`n` finite numbers from a text field ("0.001, 1" or "0.001 1"), exactly as typed; a
+    ValueError naming the field otherwise (never a silently changed value)."""
+    parts = str(text).replace(",", " ").split()
+    if len(parts) != n:
+        want = "a number" if n == 1 else f"{n} numbers separated by a comma"
+        raise ValueError(f"{what}: expected {want}, got {str(text).strip()!r}")
+    return tuple(as_number(p, what) for p in parts)
+
+
+def _message(text: str, ok: bool) -> str:
+    """A one-line message under a panel's buttons: green when done, red when refused."""
+    color = CONVERGED_COLOR if ok else RHAT_COLOR
+    return (f'<div class="galileo-message" data-ok="{str(ok).lower()}" style="color:{color};font-size:13px;'
+            f'padding:0 0.75em 0.25em 0.75em">{html.escape(text)}</div>')
+
+
+def letterbox(image: np.ndarray, cam: Camera, aspect: float, max_px: int = BACKGROUND_MAX_PX) -> tuple[np.ndarray, float]:
+    """The video frame padded (black) to a viewport's aspect ratio with the camera's principal
+    point at its centre, and the vertical field of view that then makes a pinhole view of the
+    viewport match the video pixel for pixel: (padded image, vertical fov in radians).
+    A browser stretches the background image over its canvas; padded like this, the stretch
+    is uniform and the scene drawn with that fov lands on the video's pixels."""
+    h, w = image.shape[:2]
+    fx, fy, cx, cy = cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]
+    sx = w / cam.width_px     # the video may be stored at another size than the camera's
+    sy = h / cam.height_px
+    fx, fy, cx, cy = fx * sx, fy * sy, cx * sx, cy * sy
+    half_w, half_h = max(cx, w - cx), max(cy, h - cy)    # in pixels, around the principal point
+    # in units of the focal length: the viewport covers +-half_w/fx horizontally, +-half_h/fy vertically
+    tw, th = half_w / fx, half_h / fy
+    if tw / th < aspect:
+        tw = th * aspect
+    else:
+        th = tw / aspect
+    out_w, out_h = 2 * tw * fx, 2 * th * fy
+    scale = min(1.0, max_px / out_w)
+    W, H = max(int(round(out_w * scale)), 1), max(int(round(out_h * scale)), 1)
+    import cv2
+
+    # the affine map from the frame into the padded canvas: the principal point to the centre
+    kx, ky = W / out_w, H / out_h
+    m = np.array([[kx, 0.0, W / 2 - kx * cx], [0.0, ky, H / 2 - ky * cy]])
+    canvas = cv2.warpAffine(np.ascontiguousarray(image[..., :3]), m, (W, H), flags=cv2.INTER_AREA,
+                            borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
+    return canvas, float(2 * np.arctan(th))
 
 
 @dataclass
@@ -190,7 +283,6 @@ class Viewer:
         self._lock = threading.RLock()
         self._dirty = threading.Event()
         self._stop = threading.Event()
-        self.camera_view = False
         st = controller.settings
         narrow = _per_latent(st.narrow, len(controller.names))
         # decimals a latent is shown with: integers none, others down to their narrow width's first digit (3 at least)
@@ -235,22 +327,19 @@ class Viewer:
             s.add_line_segments(f"/tracks/observed/{o.name}", _segments(o.position_m), (255, 140, 0),
                                 thickness=3, thickness_units="screen")
         self.camera = self.scenario.camera(sc)   # None: no video camera, so no frustum and no camera view
-        self.frustum = None
-        if self.camera is not None:
-            wxyz, pos, fov, aspect = camera_pose(self.camera)
-            self.frustum = s.add_camera_frustum("/video_camera", fov=fov, aspect=aspect, scale=0.15,
-                                                image=self.video[0], format="jpeg", jpeg_quality=80,
-                                                wxyz=wxyz, position=pos)
+        self._frustums: dict[int, object] = {}        # per browser (client id), while in free view
+        self._camera_clients: dict[int, dict] = {}    # browsers in the camera view: their earlier view
         self.sim_lines = []
-        self._frame_small_scene(drawing)
+        self._first_view(drawing)
         self.server.on_client_connect(self._on_connect)
+        self.server.on_client_disconnect(lambda c: (self._frustums.pop(c.client_id, None),
+                                                    self._camera_clients.pop(c.client_id, None)))
 
-    def _frame_small_scene(self, drawing) -> None:
-        """Viser's default view (from (3, 3, 3) m, 75 degrees wide) suits scenes a metre or so
-        across; a smaller one (the splash tank, 0.4 m) would be a speck in it, so new browsers
-        start on the video camera's side of the scene, nearer than the camera (its frustum
-        behind), turned 40 degrees and raised (a view the camera view does not give), looking
-        at the scene's centre."""
+    def _first_view(self, drawing) -> None:
+        """New browsers start looking at the whole scene (the ramp, the tank) filling most of a
+        FIRST_VIEW_FOV_DEG-wide view, from the video camera's side, turned 40 degrees and
+        raised (a view the camera view does not give); viser's default view (from (3, 3, 3) m,
+        75 degrees wide) showed a 0.9 m ramp about 80 px wide in a 1600 px window."""
         pts = [m.vertices for m in drawing.static] + [o.position_m[np.isfinite(o.position_m).all(axis=1)]
                                                       for o in self.tracks.objects]
         pts = [p for p in pts if len(p)]
@@ -258,23 +347,50 @@ class Viewer:
             return
         pts = np.concatenate(pts)
         lo, hi = pts.min(axis=0), pts.max(axis=0)
-        size = float(np.max(hi - lo))
-        if not 0 < size < SMALL_SCENE_M:
-            return
         centre = (lo + hi) / 2
-        back = (np.array([0.8, -1.4, 0.0]) * size if self.camera is None
-                else 0.6 * (camera_pose(self.camera)[1] - centre))
+        radius = float(np.linalg.norm(hi - lo)) / 2
+        if not radius > 0:
+            return
+        back = (np.array([0.5, -0.87, 0.0]) if self.camera is None else camera_pose(self.camera)[1] - centre)
+        back[2] = 0.0
+        back = back / (np.linalg.norm(back) or 1.0)
         a = np.deg2rad(40.0)
         rot = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-        self.server.initial_camera.fov = np.deg2rad(60.0)
+        direction = rot @ back + np.array([0.0, 0.0, 0.6])
+        direction /= np.linalg.norm(direction)
+        fov = np.deg2rad(FIRST_VIEW_FOV_DEG)
+        dist = fit_distance(pts, centre, direction, fov, FIRST_VIEW_ASPECT, FIRST_VIEW_FILL)
+        self.server.initial_camera.fov = fov
         self.server.initial_camera.look_at = centre
-        self.server.initial_camera.position = centre + rot @ back + np.array([0.0, 0.0, 0.9 * size])
+        self.server.initial_camera.position = centre + dist * direction
 
     def _on_connect(self, client) -> None:
-        """A browser that joins while the camera view is on (the background is the scene's, for
-        every browser) gets the camera view too, not the video behind a free view."""
-        if self.camera_view:
-            self.snap_camera(client)
+        """Each browser's own camera state: a frustum showing the current frame while in free
+        view (the camera view hides it: it would cover the view); a camera view that follows the
+        browser's window shape (the letterboxed background is the browser's own)."""
+        if self.camera is not None:
+            self._add_frustum(client)
+            client.camera.on_update(lambda cam: self._on_camera_update(cam.client))
+
+    def _add_frustum(self, client) -> None:
+        wxyz, pos, fov, aspect = camera_pose(self.camera)
+        with self._lock:
+            self._frustums[client.client_id] = client.scene.add_camera_frustum(
+                "/video_camera", fov=fov, aspect=aspect, scale=0.15, image=self.video[self.frame], format="jpeg",
+                jpeg_quality=80, wxyz=wxyz, position=pos)
+
+    def _on_camera_update(self, client) -> None:
+        """A browser in the camera view whose window changed shape gets its letterbox again."""
+        state = self._camera_clients.get(client.client_id)
+        if state is None:
+            return
+        aspect = client.camera.aspect if client.camera.image_height else None
+        if aspect and abs(aspect - state["aspect"]) > 1e-3:
+            self._send_camera_view(client)
+
+    def _set_opacity(self, value: float) -> None:
+        for h in self.object_handles:
+            h.opacity = float(value)
 
     def _update_sim_lines(self) -> None:
         for h in self.sim_lines:
@@ -292,10 +408,14 @@ class Viewer:
             self.play = g.add_checkbox("Play", False)
             self.view_button = g.add_button("Camera view")
             self.free_button = g.add_button("Free view")
+            self.opacity_slider = g.add_slider("Simulated opacity", 0.0, 1.0, 0.05, 1.0,
+                                               hint="see the video's objects through the simulated ones")
         with g.add_folder("Samples"):
             self.chain_dropdown = g.add_dropdown("Chain", [str(c) for c in ctrl.chain_ids()] or ["0"])
             self.sample_slider = g.add_slider("Sample", 0, 1, 1, 0)
             self.map_button = g.add_button("Jump to MAP")
+            self.follow_map = g.add_checkbox("Follow the MAP", True,
+                                             hint="show the best sample so far as it changes (scrubbing turns it off)")
             self.sample_text = g.add_markdown("")
         with g.add_folder("Chains"):
             self.progress = g.add_progress_bar(0.0, animated=True)
@@ -303,8 +423,9 @@ class Viewer:
             self.convergence_box = g.add_html("")
             self.trace_plot = g.add_uplot((np.zeros(1), np.zeros(1)), (uplot.Series(label="sweep"),
                                                                        uplot.Series(label="chain 0")),
-                                          title="log-likelihood per chain", aspect=1.6,
-                                          scales={"x": uplot.Scale(time=False)})
+                                          title=TRACE_TITLE, aspect=1.6,
+                                          scales={"x": uplot.Scale(time=False),
+                                                  "y": uplot.Scale(distr=4, asinh=TRACE_ASINH_NATS)})
             self.init_text = g.add_markdown(init_markdown(ctrl.init_info, ctrl.names))
             self._recognized = recognition_curves(ctrl.init_info, ctrl.names)
             self.hist_plots = {}
@@ -316,52 +437,143 @@ class Viewer:
                 zeros = (np.zeros(1),) * len(series)
                 self.hist_plots[n] = g.add_uplot(zeros, tuple(series), title=f"posterior {n}", aspect=2.5,
                                                  scales={"x": uplot.Scale(time=False)})
-        specs = {lat.name: lat for lat in ctrl.latents}
+        specs = self._specs = {lat.name: lat for lat in ctrl.latents}
+        # Every number is a text field, read by the server exactly as typed (a browser's number
+        # input rewrites what it cannot parse: "1e308" became 1308, -1 became the minimum)
         with g.add_folder("Priors and settings", expand_by_default=False):
-            st = ctrl.settings
-            self.bound_inputs = {}
-            for n in ctrl.names:
-                lo, hi = st.bounds[n]
-                lat = specs[n]
-                self.bound_inputs[n] = g.add_vector2(f"{n} bounds", (lo, hi), step=1 if lat.integer else 0.001,
-                                                     hint=f"uniform prior (low, high) in {lat.unit}: {lat.doc}")
+            self.settings_in_force = g.add_markdown("")
+            self.bound_inputs = {n: g.add_text(f"{n} bounds ({specs[n].unit})", "",
+                                               hint=f"uniform prior: low, high in {specs[n].unit}: {specs[n].doc}")
+                                 for n in ctrl.names}
             noise = ctrl.scenario.noise
-            self.sigma_input = g.add_number(f"{noise.name} ({noise.unit})", st.noise, min=1e-4, step=0.001,
-                                            hint=noise.doc or None)
+            self.sigma_input = g.add_text(f"{noise.name} ({noise.unit})", "", hint=noise.doc or None)
+            st = ctrl.settings
             if isinstance(st.narrow, tuple) or isinstance(st.broad, tuple):
                 # one (narrow, broad) pair per latent, in its own unit
                 self.narrow_input = self.broad_input = None
-                narrow, broad = _per_latent(st.narrow, len(ctrl.names)), _per_latent(st.broad, len(ctrl.names))
-                self.width_inputs = {
-                    n: g.add_vector2(f"{n} widths", (narrow[j], broad[j]), min=(1e-6, 1e-6),
-                                     step=_step(min(narrow[j], broad[j])),
-                                     hint=f"proposal half-widths (narrow, broad) in {specs[n].unit}")
-                    for j, n in enumerate(ctrl.names)}
+                self.width_inputs = {n: g.add_text(f"{n} widths", "", hint=f"proposal half-widths: narrow, broad "
+                                                   f"in {specs[n].unit}") for n in ctrl.names}
             else:
                 self.width_inputs = {}
-                self.narrow_input = g.add_number("narrow width", st.narrow, min=1e-4, step=0.001)
-                self.broad_input = g.add_number("broad width", st.broad, min=1e-4, step=0.01)
-            self.every_input = g.add_number("broad every", st.broad_every, min=0, step=1)
+                self.narrow_input = g.add_text("narrow width", "", hint="proposal half-width of the usual sweep")
+                self.broad_input = g.add_text("broad width", "", hint="proposal half-width of the broad sweep")
+            self.every_input = g.add_text("broad every", "", hint="every this many sweeps a broad one (0: never)")
             self.apply_button = g.add_button("Apply")
+            self.settings_message = g.add_html("")
+            self._show_settings_in_force()
         with g.add_folder("Steering", expand_by_default=False):
+            self.steer_message = g.add_html("")
             self.pause_all = g.add_button("Pause all")
             self.resume_all = g.add_button("Resume all")
             self.pause_one = g.add_button("Pause chain")
             self.resume_one = g.add_button("Resume chain")
             self.add_button = g.add_button("Add chain")
             self.remove_button = g.add_button("Remove chain")
+            self.remove_confirm = g.add_button("Confirm", color="red", visible=False)
+            self.remove_cancel = g.add_button("Cancel", visible=False)
+            self._remove_pending: int | None = None
             self.reset_map = g.add_button("Reset chain to MAP")
             self.reset_sel = g.add_button("Reset chain to selected sample")
             start = self._start_values()
-            self.set_inputs = {n: g.add_number(n, start[n], step=1 if specs[n].integer else 0.001,
-                                               hint=f"{specs[n].unit}: {specs[n].doc}") for n in ctrl.names}
+            self.set_inputs = {n: g.add_text(f"{n} ({specs[n].unit})", _num(start[n]),
+                                             hint=f"{specs[n].unit}: {specs[n].doc}") for n in ctrl.names}
             self.set_button = g.add_button("Set chain's latents")
             until = ctrl.status().get("until") or {}
-            self.until_input = g.add_number("until R-hat", until.get("until_rhat", 1.01), min=1.0001, step=0.001,
-                                            hint="run on past the sweep target until every latent's R-hat is at "
-                                                 "most this and its ESS large enough (or the budget is spent)")
+            self.until_input = g.add_text("until R-hat", _num(until.get("until_rhat", 1.01)),
+                                          hint="run on past the sweep target until every latent's R-hat is at "
+                                               "most this and its ESS large enough (or the budget is spent)")
             self.until_button = g.add_button("Run until converged")
         self._wire()
+
+    def _show_settings_in_force(self) -> None:
+        """The text fields and the "in force" line show the settings the chains run under."""
+        st, names = self.ctrl.settings, self.ctrl.names
+        for n in names:
+            lo, hi = st.bounds[n]
+            self.bound_inputs[n].value = f"{_num(lo)}, {_num(hi)}"
+        self.sigma_input.value = _num(st.noise)
+        k = len(names)
+        if self.width_inputs:
+            narrow, broad = _per_latent(st.narrow, k), _per_latent(st.broad, k)
+            for j, n in enumerate(names):
+                self.width_inputs[n].value = f"{_num(narrow[j])}, {_num(broad[j])}"
+        else:
+            self.narrow_input.value, self.broad_input.value = _num(st.narrow), _num(st.broad)
+        self.every_input.value = str(st.broad_every)
+        noise = self.ctrl.scenario.noise
+        parts = [f"{n} [{_num(st.bounds[n][0])}, {_num(st.bounds[n][1])}] {self._specs[n].unit}" for n in names]
+        widths = (f"narrow {_num(st.narrow)}, broad {_num(st.broad)}" if not self.width_inputs else
+                  "widths " + ", ".join(f"{n} {_num(a)}/{_num(b)}" for n, a, b in
+                                        zip(names, _per_latent(st.narrow, k), _per_latent(st.broad, k))))
+        self.settings_in_force.content = (f"**In force:** priors {'; '.join(parts)}; {noise.name} "
+                                          f"{_num(st.noise)} {noise.unit}; {widths}; broad every {st.broad_every}")
+
+    def read_settings(self) -> dict:
+        """What the Priors and settings fields say, checked by the rules the controller applies
+        (the latents' limits, a positive noise, positive widths, a whole broad period); a
+        ValueError naming every wrong field, and nothing applied, otherwise."""
+        ctrl, names = self.ctrl, self.ctrl.names
+        errors, bounds = [], {}
+        for n in names:
+            try:
+                lo, hi = parse_numbers(self.bound_inputs[n].value, 2, f"{n} bounds (low, high)")
+                bounds[n] = check_bounds(self._specs[n], lo, hi)
+            except ValueError as e:
+                errors.append(str(e))
+        noise = None
+        try:
+            noise = check_noise(ctrl.scenario.noise, parse_numbers(self.sigma_input.value, 1,
+                                                                   ctrl.scenario.noise.name)[0])
+        except ValueError as e:
+            errors.append(str(e))
+        widths = None
+        try:
+            every = parse_numbers(self.every_input.value, 1, "broad every")[0]
+            if self.width_inputs:
+                pairs = [parse_numbers(self.width_inputs[n].value, 2, f"{n} widths (narrow, broad)") for n in names]
+                widths = check_widths(tuple(p[0] for p in pairs), tuple(p[1] for p in pairs), every)
+            else:
+                widths = check_widths(parse_numbers(self.narrow_input.value, 1, "narrow width")[0],
+                                      parse_numbers(self.broad_input.value, 1, "broad width")[0], every)
+        except ValueError as e:
+            errors.append(str(e))
+        if errors:
+            raise ValueError("; ".join(errors))
+        return {"bounds": bounds, "noise": noise, "widths": widths}
+
+    def apply_settings(self) -> str:
+        """Apply every field exactly as typed, or nothing (the message says which field is wrong
+        and why); returns the message shown under Apply."""
+        ctrl = self.ctrl
+        try:
+            new = self.read_settings()
+        except ValueError as e:
+            msg = f"Not applied: {e}"
+            self.settings_message.content = _message(msg, ok=False)
+            return msg
+        st = ctrl.settings
+        changed = []
+        for n, (lo, hi) in new["bounds"].items():
+            if (lo, hi) != tuple(st.bounds[n]):
+                ctrl.set_bounds(n, lo, hi)
+                changed.append(f"{n} bounds")
+        if new["noise"] != st.noise:
+            ctrl.set_noise(new["noise"])
+            changed.append(ctrl.scenario.noise.name)
+        n, b, e = new["widths"]
+        k = len(ctrl.names)
+        if self.width_inputs:
+            same = (_per_latent(n, k), _per_latent(b, k), e) == (_per_latent(st.narrow, k), _per_latent(st.broad, k),
+                                                                 st.broad_every)
+        else:
+            same = (n, b, e) == (st.narrow, st.broad, st.broad_every)
+        if not same:
+            ctrl.set_widths(n, b, e)
+            changed.append("proposal widths")
+        msg = ("Applied: " + ", ".join(changed)) if changed else "Nothing changed"
+        self.settings_message.content = _message(msg, ok=True)
+        self._show_settings_in_force()
+        return msg
 
     def _chain(self) -> int:
         return int(self.chain_dropdown.value)
@@ -370,64 +582,115 @@ class Viewer:
         ctrl = self.ctrl
         self.frame_slider.on_update(lambda _: self.set_frame(int(self.frame_slider.value)))
         self.view_button.on_click(lambda ev: self.snap_camera(ev.client))
-        self.free_button.on_click(lambda ev: self.free_view())
-        self.chain_dropdown.on_update(lambda _: self._on_chain_changed())
-        self.sample_slider.on_update(lambda _: self.select_sample(self._chain(), int(self.sample_slider.value)))
-        self.map_button.on_click(lambda _: self.jump_to_map())
-
-        def apply(_):
-            try:
-                for n, h in self.bound_inputs.items():
-                    lo, hi = (float(v) for v in h.value)
-                    if (lo, hi) != tuple(ctrl.settings.bounds[n]):
-                        ctrl.set_bounds(n, lo, hi)
-                if float(self.sigma_input.value) != ctrl.settings.noise:
-                    ctrl.set_noise(float(self.sigma_input.value))
-                st = ctrl.settings
-                if self.width_inputs:
-                    pairs = [tuple(float(v) for v in h.value) for h in self.width_inputs.values()]
-                    widths = (tuple(p[0] for p in pairs), tuple(p[1] for p in pairs), int(self.every_input.value))
-                    k = len(ctrl.names)
-                    current = (_per_latent(st.narrow, k), _per_latent(st.broad, k), st.broad_every)
-                else:
-                    widths = (float(self.narrow_input.value), float(self.broad_input.value),
-                              int(self.every_input.value))
-                    current = (st.narrow, st.broad, st.broad_every)
-                if widths != current:
-                    ctrl.set_widths(*widths)
-            except ValueError as e:
-                self._notify(str(e))
-
-        self.apply_button.on_click(apply)
+        self.free_button.on_click(lambda ev: self.free_view(ev.client))
+        self.opacity_slider.on_update(lambda _: self._set_opacity(float(self.opacity_slider.value)))
+        self.chain_dropdown.on_update(self._on_chain_changed)
+        self.sample_slider.on_update(lambda ev: self._on_sample_moved(ev))
+        self.map_button.on_click(lambda _: self._follow_and_jump())
+        self.follow_map.on_update(lambda _: self._follow_and_jump() if self.follow_map.value else None)
+        self.apply_button.on_click(lambda _: self.apply_settings())
 
         def steer(fn):
-            """A steering call from a button: its ValueError (e.g. a value outside the prior)
-            shown to the user, not lost in the server's log."""
+            """A steering call from a button: what it did, or why it could not (e.g. a value
+            outside the prior), shown in the Steering panel and as a notification."""
             def call(_):
                 try:
-                    fn()
-                except ValueError as e:
+                    done = fn()
+                except (ValueError, GalileoError) as e:
+                    self.steer_message.content = _message(f"Not done: {e}", ok=False)
                     self._notify(str(e))
+                except Exception as e:   # never a traceback the user cannot see
+                    log.exception("steering failed")
+                    self.steer_message.content = _message(f"Failed: {type(e).__name__}: {e}", ok=False)
+                    self._notify(f"{type(e).__name__}: {e}")
+                else:
+                    self.steer_message.content = _message(done, ok=True) if done else ""
+                self._dirty.set()
             return call
 
-        self.pause_all.on_click(steer(lambda: ctrl.pause()))
-        self.resume_all.on_click(steer(lambda: ctrl.resume()))
-        self.pause_one.on_click(steer(lambda: ctrl.pause(self._chain())))
-        self.resume_one.on_click(steer(lambda: ctrl.resume(self._chain())))
-        self.add_button.on_click(steer(lambda: ctrl.add_chains(1)))
-        self.remove_button.on_click(steer(lambda: ctrl.remove_chain(self._chain())))
-        self.reset_map.on_click(steer(lambda: ctrl.reset_chain(self._chain(), "map")))
-        self.reset_sel.on_click(steer(lambda: ctrl.reset_chain(self._chain(), "sample",
-                                                               (self.selection.chain, self.selection.index))))
-        self.set_button.on_click(steer(lambda: ctrl.set_chain(
-            self._chain(), {n: float(h.value) for n, h in self.set_inputs.items()})))
+        def each(action, what):
+            def run():
+                c = self._chain()
+                action(c)
+                return f"{what} chain {c}"
+            return run
+
+        self.pause_all.on_click(steer(lambda: ctrl.pause() or "paused every chain"))
+        self.resume_all.on_click(steer(lambda: ctrl.resume() or "resumed every chain"))
+        self.pause_one.on_click(steer(each(ctrl.pause, "paused")))
+        self.resume_one.on_click(steer(each(ctrl.resume, "resumed")))
+        self.add_button.on_click(steer(lambda: f"added chain {ctrl.add_chains(1)[0]}"))
+        self.remove_button.on_click(steer(self._ask_remove))
+        self.remove_confirm.on_click(steer(self._confirm_remove))
+        self.remove_cancel.on_click(steer(self._cancel_remove))
+        self.reset_map.on_click(steer(each(lambda c: ctrl.reset_chain(c, "map"), "moved to the MAP:")))
+        self.reset_sel.on_click(steer(each(lambda c: ctrl.reset_chain(
+            c, "sample", (self.selection.chain, self.selection.index)), "moved to the selected sample:")))
+
+        def set_latents():
+            values = {}
+            errors = []
+            for n, h in self.set_inputs.items():
+                try:
+                    values[n] = parse_numbers(h.value, 1, n)[0]
+                except ValueError as e:
+                    errors.append(str(e))
+            if errors:
+                raise ValueError("; ".join(errors))
+            c = self._chain()
+            ctrl.set_chain(c, values)
+            return f"set chain {c}'s latents"
+        self.set_button.on_click(steer(set_latents))
 
         def run_until():
+            r = parse_numbers(self.until_input.value, 1, "until R-hat")[0]
+            if not r > 1.0:
+                raise ValueError(f"until R-hat must be above 1 (e.g. 1.01), got {_num(r)}")
             st = ctrl.status()
             u = st.get("until") or {}
-            ctrl.run_until(float(self.until_input.value), u.get("min_ess", st["convergence"]["min_ess"]),
-                           u.get("max_sweeps"))
+            ctrl.run_until(r, u.get("min_ess", st["convergence"]["min_ess"]), u.get("max_sweeps"))
+            return f"running until R-hat <= {_num(r)}"
         self.until_button.on_click(steer(run_until))
+
+    # -- removing a chain: asked, confirmed, the selection kept on a chain that remains ----------
+    def _ask_remove(self) -> str:
+        c = self._chain()
+        if c not in self.ctrl.chain_ids():
+            raise ValueError(f"chain {c} was removed already")
+        self._remove_pending = c
+        self.remove_confirm.label = f"Confirm: remove chain {c}"
+        self.remove_confirm.visible = self.remove_cancel.visible = True
+        return f"remove chain {c} for good? Its samples stay (and count for the MAP). Confirm or Cancel."
+
+    def _cancel_remove(self) -> str:
+        self._remove_pending = None
+        self.remove_confirm.visible = self.remove_cancel.visible = False
+        return "nothing removed"
+
+    def _confirm_remove(self) -> str:
+        c, self._remove_pending = self._remove_pending, None
+        self.remove_confirm.visible = self.remove_cancel.visible = False
+        if c is None:
+            return "nothing removed"
+        self.ctrl.remove_chain(c)
+        if self._chain() == c:     # the selection moves to a neighbour, never silently to chain 0
+            ids = [i for i in self.ctrl.chain_ids() if i != c]
+            if ids:
+                nxt = min(ids, key=lambda i: (abs(i - c), -i))
+                self._set_chain_options(ids, nxt)
+        return f"removed chain {c} (its samples stay)"
+
+    def _set_chain_options(self, ids: list[int], value: int | None = None) -> None:
+        """New chain options, keeping the selected chain if it remains, else its nearest neighbour."""
+        opts = [str(c) for c in ids] or ["0"]
+        current = self.chain_dropdown.value
+        if value is None:
+            value = int(current) if current in opts else (
+                min(ids, key=lambda i: (abs(i - int(current)), -i)) if ids else 0)
+        with self.server.atomic():
+            self.chain_dropdown.options = opts
+            if self.chain_dropdown.value != str(value):
+                self.chain_dropdown.value = str(value)
 
     def _notify(self, text: str) -> None:
         for client in self.server.get_clients().values():
@@ -507,12 +770,25 @@ class Viewer:
         self.sample_slider.value = index
         self.select_sample(chain, index)
 
-    def _on_chain_changed(self) -> None:
+    def _on_chain_changed(self, ev=None) -> None:
+        if ev is not None and ev.client is not None:    # the user picked a chain: stop following the MAP
+            self.follow_map.value = False
         chain = self._chain()
         n = len(self.ctrl.samples(chain))
         self.sample_slider.max = max(n - 1, 1)
         self.sample_slider.value = max(n - 1, 0)
         self.select_sample(chain, max(n - 1, 0))
+
+    def _on_sample_moved(self, ev) -> None:
+        if ev.client is not None:      # the user scrubs: stop following the MAP
+            self.follow_map.value = False
+        self.select_sample(self._chain(), int(self.sample_slider.value))
+
+    def _follow_and_jump(self) -> None:
+        if not self.follow_map.value:
+            self.follow_map.value = True   # its callback jumps
+            return
+        self.jump_to_map()
 
     def _pose_objects(self, frame: int) -> None:
         traj = self.traj
@@ -526,33 +802,73 @@ class Viewer:
             self.frame = int(np.clip(frame, 0, self.n_frames - 1))
             self._pose_objects(self.frame)
             img = self.video[self.frame]
-            if self.frustum is not None:
-                self.frustum.image = img
-            if self.camera_view:
-                self.server.scene.set_background_image(img, format="jpeg", jpeg_quality=85)
+            for f in list(self._frustums.values()):
+                f.image = img
+            clients = self.server.get_clients()
+            for cid in list(self._camera_clients):
+                if cid in clients:
+                    self._send_camera_view(clients[cid], pose=False)
+
+    @property
+    def camera_view(self) -> bool:
+        """Whether some browser is in the camera view."""
+        return bool(self._camera_clients)
+
+    def _send_camera_view(self, client, pose: bool = True) -> None:
+        """This browser's letterboxed background (the current frame) and, with `pose`, its camera
+        on the video camera with the fov the letterbox needs."""
+        cam = self.camera
+        w, h = client.camera.image_width, client.camera.image_height
+        aspect = w / h if w and h else cam.width_px / cam.height_px   # until the browser says its size
+        img, fov = letterbox(self.video[self.frame], cam, aspect)
+        if pose:
+            wxyz, pos, _, _ = camera_pose(cam)
+            fwd = np.array(trimesh.transformations.quaternion_matrix(wxyz))[:3, 2]
+            with client.atomic():
+                client.camera.fov = fov
+                client.camera.wxyz = wxyz
+                client.camera.position = pos
+                client.camera.look_at = pos + 1.2 * fwd
+        client.scene.set_background_image(img, format="jpeg", jpeg_quality=85)
+        self._camera_clients[client.client_id]["aspect"] = aspect
 
     def snap_camera(self, client=None) -> None:
+        """The camera view, in this browser (every browser without one): the browser's camera on
+        the video camera, the frame behind the scene, letterboxed to the window's shape so the
+        two agree pixel for pixel in any window; its free view is kept for Free view."""
         if self.camera is None:
             self._notify("this scene has no video camera")
             return
-        wxyz, pos, fov, _ = camera_pose(self.camera)
         clients = [client] if client is not None else list(self.server.get_clients().values())
-        fwd = np.array(trimesh.transformations.quaternion_matrix(wxyz))[:3, 2]
-        for c in clients:
-            with c.atomic():
-                c.camera.fov = fov
-                c.camera.wxyz = wxyz
-                c.camera.position = pos
-                c.camera.look_at = pos + 1.2 * fwd
-        self.camera_view = True
-        self.server.scene.set_background_image(self.video[self.frame], format="jpeg", jpeg_quality=85)
-        self.frustum.visible = False
+        with self._lock:
+            for c in clients:
+                if c.client_id not in self._camera_clients:
+                    cam = c.camera
+                    self._camera_clients[c.client_id] = {
+                        "free": (cam.fov, np.array(cam.wxyz), np.array(cam.position), np.array(cam.look_at)),
+                        "aspect": 0.0}
+                fr = self._frustums.pop(c.client_id, None)
+                if fr is not None:
+                    fr.remove()
+                self._send_camera_view(c)
 
-    def free_view(self) -> None:
-        self.camera_view = False
-        self.server.scene.set_background_image(None)
-        if self.frustum is not None:
-            self.frustum.visible = True
+    def free_view(self, client=None) -> None:
+        """Back to the view this browser had before the camera view (every browser without one)."""
+        clients = [client] if client is not None else list(self.server.get_clients().values())
+        with self._lock:
+            for c in clients:
+                state = self._camera_clients.pop(c.client_id, None)
+                if state is None:
+                    continue
+                c.scene.set_background_image(None)
+                fov, wxyz, pos, look_at = state["free"]
+                with c.atomic():
+                    c.camera.fov = fov
+                    c.camera.wxyz = wxyz
+                    c.camera.position = pos
+                    c.camera.look_at = look_at
+                if self.camera is not None:
+                    self._add_frustum(c)
 
     # -- live updates --------------------------------------------------------------------------
     def _on_controller(self, kind: str, payload: dict) -> None:
@@ -573,14 +889,17 @@ class Viewer:
     def refresh(self) -> None:
         ctrl = self.ctrl
         ids = ctrl.chain_ids()
-        opts = [str(c) for c in ids] or ["0"]
-        if tuple(opts) != tuple(self.chain_dropdown.options):
-            self.chain_dropdown.options = opts
+        if tuple(str(c) for c in ids) != tuple(self.chain_dropdown.options):
+            self._set_chain_options(ids)     # the selected chain kept, or its nearest neighbour
         chain = self._chain()
         n = len(ctrl.samples(chain))
         if n > 1 and self.sample_slider.max != n - 1:
             self.sample_slider.max = n - 1
-        if n and self.selection_empty:  # the first samples arrived: show the latest
+        m = ctrl.map()
+        if self.follow_map.value and m is not None:
+            if self.selection_empty or (self.selection.chain, self.selection.index) != (m[0], m[1]):
+                self.jump_to_map()       # the best sample so far, as it changes
+        elif n and self.selection_empty:  # the first samples arrived: show the latest
             self.sample_slider.value = n - 1
             self.select_sample(chain, n - 1)
         st = ctrl.status()
@@ -641,17 +960,19 @@ class Viewer:
         if length == 0:
             return
         x = np.arange(1, length + 1, dtype=float)
-        # uPlot draws nothing if a series holds NaN: a shorter (paused, removed) chain's trace is
-        # held at its last value
-        ys = [np.concatenate([t, np.full(length - len(t), t[-1] if len(t) else 0.0)]) for t in traces]
+        # each trace less the best log-likelihood so far (<= 0; see TRACE_TITLE); uPlot draws
+        # nothing if a series holds NaN: a shorter (paused, removed) chain's trace is held at its
+        # last value
+        best = max((float(np.max(t)) for t in traces if len(t)), default=0.0)
+        ys = [np.concatenate([t, np.full(length - len(t), t[-1] if len(t) else best)]) - best for t in traces]
         series = [uplot.Series(label="sweep")] + [
             uplot.Series(label=f"chain {c}", stroke=CHAIN_COLORS[c % len(CHAIN_COLORS)], width=1) for c in ids]
         data = [x, *ys]
         # edits (priors, sigma, widths, steering) as spikes from the bottom at the sweep they took effect
         # (pausing and resuming change no chain's target or state: not edits; the app pauses every
         # chain at its target sweeps, which would otherwise mark a spike there)
-        edits = sorted({e["sweep"] for e in ctrl.events
-                        if e["kind"] not in NOT_EDITS and 1 <= e["sweep"] <= length})
+        edits = sorted({sw for sw in (edit_sweep(e) for e in ctrl.events if e["kind"] not in NOT_EDITS)
+                        if 1 <= sw <= length})
         if edits:
             stack = np.stack(ys)
             marks = np.full(length, float(stack.min()))
@@ -659,8 +980,8 @@ class Viewer:
                 marks[sw - 1] = float(stack[:, sw - 1].max())
             series.append(uplot.Series(label="edit", stroke="#000", width=1))
             data.append(marks)
-        # the y axis wide enough for its labels (a splash chain starts near -1e6)
-        width = 8 * len(f"{-max(abs(float(np.min(ys))), abs(float(np.max(ys)))):,.0f}") + 20
+        # the y axis wide enough for its labels, minus sign included (a splash chain starts 1e6 below)
+        width = Y_AXIS_CHAR_PX * len(f"{-abs(float(np.min(ys))):,.0f}") + Y_AXIS_PAD_PX
         if width != self._y_axis_px:
             self._y_axis_px = width
             self.trace_plot.axes = (uplot.Axis(), uplot.Axis(size=width))

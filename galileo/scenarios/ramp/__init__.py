@@ -27,7 +27,8 @@ class RampScenario(Scenario):
                    "(Galileo, NIPS 2015): masses and frictions from tracked velocities")
     package = __name__   # scene.py, tracking.py, recognition.py
     noise = Noise("sigma_mps", "m/s", 0.05, "scale of each tracked velocity component's noise (x, z): the paper's "
-                  "Sigma, a standard deviation for its Gaussian likelihood, the scale of the default Student-t")
+                  "Sigma, a standard deviation for its Gaussian likelihood, the scale of the default Student-t",
+                  limits=(1e-4, 10.0))   # 0.1 mm/s (a pixel's jitter is more) to 10 m/s (no ramp is that fast)
     # the default observation model is Student-t (it measured better on coverage and accuracy,
     # BENCHMARKS.md, issue 12); the paper's is Gaussian
     paper_priors = {"observation": "gaussian"}

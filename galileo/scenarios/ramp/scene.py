@@ -29,8 +29,11 @@ ROLES = ("ramp", "target")
 TARGET_KINDS = ("cardboard", "foam")
 # latent name -> (object index, attribute)
 LATENTS = {"m1_kg": (0, "mass_kg"), "k1": (0, "friction"), "m2_kg": (1, "mass_kg"), "k2": (1, "friction")}
-_MASS = dict(unit="kg", limits=(0.0, math.inf), limits_open_low=True)
-_FRICTION = dict(unit="1", limits=(0.0, math.inf))
+# where any prior's bounds must lie: a tabletop ramp's objects (a 100 kg one would crush it;
+# Bullet's contacts degrade at mass ratios of 1e6 and more) and friction coefficients (rubber
+# on concrete is about 1; 10 holds anything on any ramp under 60 degrees)
+_MASS = dict(unit="kg", limits=(0.0, 100.0), limits_open_low=True)
+_FRICTION = dict(unit="1", limits=(0.0, 10.0))
 # the latents: the paper's priors (mass ~ U(0.001, 1) kg, friction ~ U(0, 1)) and proposals
 LATENT_SPECS = {
     "m1_kg": Latent("m1_kg", bounds=(0.001, 1.0), doc="ramp object's mass", **_MASS),

@@ -40,7 +40,8 @@ class SplashScenario(Scenario):
                    "water drag and start frame from tracked positions and velocities; mass = density x volume")
     package = __name__   # scene.py, tracking.py, recognition.py
     protocol = {"chains": 50, "sweeps": 75}   # the seed: 50 chains per video (75 sweeps: Galileo's)
-    noise = Noise("sigma_px", "px", 1.0, "SD of tracked positions (px) and velocities (px/frame), the seed's Sigma = 1")
+    noise = Noise("sigma_px", "px", 1.0, "SD of tracked positions (px) and velocities (px/frame), the seed's Sigma = 1",
+                  limits=(1e-3, 1e4))   # a thousandth of a pixel to more than any frame is wide
     # the recognition model's mass scale (recognition.py: readouts, labels, examples, features):
     # the catalogue's lightest (1.9 g, foam) and heaviest (54.9 g, porcelain) objects, rounded outward
     recognition_mass_range_kg = (0.001, 0.06)

@@ -58,13 +58,13 @@ CM2 = 1e-4                        # m^2 per cm^2
 
 LATENT_SPECS = {
     "area_cm2": Latent("area_cm2", "cm^2", (0.1, 20.0), "area the object shows the water from below (drag, shape)",
-                       limits=(0.0, math.inf), limits_open_low=True, narrow=0.05, broad=0.5),
+                       limits=(0.0, 1000.0), limits_open_low=True, narrow=0.05, broad=0.5),
     "density_g_cm3": Latent("density_g_cm3", "g/cm^3", (0.001, 2.0), "object's density (mass = density x volume)",
-                            limits=(0.0, math.inf), limits_open_low=True, narrow=0.05, broad=0.5),
+                            limits=(0.0, 25.0), limits_open_low=True, narrow=0.05, broad=0.5),
     "drag_water": Latent("drag_water", "1", (0.001, 2.0), "drag coefficient in water (in air: 1e-3 x this)",
-                         limits=(0.0, math.inf), limits_open_low=True, narrow=0.0005, broad=0.002),
+                         limits=(0.0, 100.0), limits_open_low=True, narrow=0.0005, broad=0.002),
     "start_step": Latent("start_step", "step", (5.0, 30.0), "physics step shown as the video's frame 0",
-                          limits=(0.0, math.inf), narrow=1.0, broad=1.0, integer=True),
+                          limits=(0.0, 1000.0), narrow=1.0, broad=1.0, integer=True),
 }
 LATENT_NAMES = tuple(LATENT_SPECS)
 
