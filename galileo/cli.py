@@ -309,7 +309,7 @@ def cmd_scene(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from .scenarios.ramp.clicks import scene_from_clicks
+    from .scenarios.ramp.clicks import START_MAX_FRAMES, find_start_m, sample_frames, scene_from_clicks
     from .video import read_frames
 
     def numbers(text: str, n: int, what: str) -> list[float]:
@@ -334,28 +334,40 @@ def cmd_scene(args: argparse.Namespace) -> int:
         raise GalileoError(f"--upper-at-m {args.upper_at_m} is beyond the ramp's length {args.ramp_length_m}")
     if size_m is not None and args.target == "none":
         raise GalileoError("--target-size-m needs --target cardboard|foam")
-    n_frames, size = 0, None
-    for frame in read_frames(args.video):
-        size = size or (frame.shape[1], frame.shape[0])
-        n_frames += 1
+    # one pass over the video: its length and size, and (without --start-m) at most 60 frames
+    # evenly spaced, at most 640 px wide, to find the object's start in
+    frames, n_frames, size = sample_frames(read_frames(args.video), max_frames=0 if args.start_m is not None
+                                           else START_MAX_FRAMES)
     if not n_frames:
         raise GalileoError(f"video {args.video} has no decodable frames")
     from .video import _stream_info
 
     fps = _stream_info(args.video)[0]
-    scene, err = scene_from_clicks(np.array(uv).reshape(4, 2), width_px=size[0], height_px=size[1], fps=fps,
-                                   n_frames=n_frames, length_m=args.ramp_length_m, width_m=args.ramp_width_m,
-                                   angle_deg=args.angle_deg, upper_at_m=args.upper_at_m, focal_px=args.focal_px,
-                                   start_m=args.start_m, target=args.target,
-                                   target_distance_m=args.target_distance_m, target_size_m=size_m)
+    common = dict(width_px=size[0], height_px=size[1], fps=fps, n_frames=n_frames, length_m=args.ramp_length_m,
+                  width_m=args.ramp_width_m, angle_deg=args.angle_deg, upper_at_m=args.upper_at_m,
+                  focal_px=args.focal_px, target=args.target, target_distance_m=args.target_distance_m,
+                  target_size_m=size_m)
+    clicks = np.array(uv).reshape(4, 2)
+    start_m = args.start_m
+    if start_m is None:
+        # the camera first (any start on the ramp will do for it), then the start it sees
+        scene, _ = scene_from_clicks(clicks, start_m=args.ramp_length_m / 2, **common)
+        start_m = find_start_m(frames, scene)
+        del frames
+    try:
+        scene, err = scene_from_clicks(clicks, start_m=start_m, **common)
+    except GalileoError as e:
+        if args.start_m is not None:
+            raise
+        raise GalileoError(f"{e} (the object was found in the first frame {start_m:.2f} m up the ramp): give "
+                           "--start-m, from the ramp's foot to the object's centre") from None
     cam = scene.camera
-    start_m = scene.start_distance_m()
     scene.save(args.out)
     print(f"wrote {args.out}: focal {cam.K[0, 0]:.1f} px{' (estimated)' if args.focal_px is None else ''}, camera "
           f"{np.linalg.norm(cam.position_in_world):.2f} m from the ramp's foot, reprojection error {err:.2f} px")
     if args.start_m is None:
-        print(f"note: the object's start is taken as {start_m:.2f} m up the ramp (the paper's 30 units); "
-              "give --start-m, measured from the foot to the object's centre")
+        print(f"object found in the first frame, {scene.start_distance_m():.2f} m up the ramp (give --start-m to "
+              "override)")
     return 0
 
 
@@ -654,7 +666,9 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("--ramp-width-m", type=float, required=True)
     sc.add_argument("--angle-deg", type=float, required=True, help="the ramp's angle to the ground")
     sc.add_argument("--start-m", type=float, default=None,
-                    help="how far up the ramp the object starts, from the foot to its centre (default 0.6)")
+                    help="how far up the ramp the object starts, from the foot to its centre (default: the object is "
+                         "found in the first frame, where it differs from the video's end; a video in which it "
+                         "never moves needs this)")
     sc.add_argument("--focal-px", type=float, default=None, help="the focal length (default: estimated from the points)")
     sc.add_argument("--target", choices=["none", "cardboard", "foam"], default="none")
     sc.add_argument("--target-distance-m", type=float, default=None,

@@ -233,7 +233,7 @@ def test_viewer_and_rerun(observed, tmp_path):
     ents = {}
     for ch in chunk.RrdReader(tmp_path / "s" / RRD_NAME).stream().to_chunks():
         ents.setdefault(ch.entity_path.lstrip("/"), []).append(ch.to_record_batch().to_pydict())
-    assert {"chains/0/e", "chains/1/e", "chains/0/loglik", "posterior/e", "sim/ball", "video",
+    assert {"chains/0/e", "chains/1/e", "chains/0/loglik", "posterior/e", "sim/selected/ball", "video",
             "observed/ball"} <= set(ents)
     es = [x for cols in ents["chains/0/e"] for x in cols.get("Scalars:scalars", [])]
     np.testing.assert_allclose([x[0] for x in es], ctrl.samples(0)[:, 0])

@@ -2,19 +2,35 @@
 
 Entity layout (timelines in brackets):
 
-    video                      AssetVideo (static) + VideoFrameReference [frame]
-                               (fallback: decoded frames as JPEG images [frame], subsampled)
+    video                      AssetVideo (static) + VideoFrameReference [frame], and frame 0's
+                               reference at [sweep 0] too, so the panel shows a frame on the
+                               blueprint's own timeline ("sweep"), not only on "frame"
+                               (JPEG frames instead, see below)
     video/tracks/<object>      Points2D: KLT features, else the projected centre [frame]
     video/tracks/<object>/center   Points2D: projected centre, labelled [frame]
     video/tracks/<object>/path     LineStrips2D: the centre's whole path (static)
     observed/<object>          LineStrips3D (static) + Points3D [frame]: tracked positions, metres
-    chains/<c>/loglik          Scalars [sweep]
+    chains/<c>/loglik          Scalars [sweep]   (sweep s = the chain's sample s - 1, from 1)
     chains/<c>/<latent>        Scalars [sweep]   (the scenario's latents, by name)
     posterior/<latent>         BarChart histogram (static, replaced on each call)
     diagnostics/r_hat/<latent> Scalars [sweep]   (R-hat of the kept draws, logged when it changes)
     diagnostics/converged      Scalars [sweep]   (1: every latent converged, 0: not)
     events                     TextLog [sweep]   (prior edits etc.)
-    sim/<object>               LineStrips3D (static) + Points3D [frame]: a simulated trajectory
+    sim/map/<object>           LineStrips3D [sweep, frame 0] + Points3D [frame]: the MAP sample's
+                               simulated motion, logged when the MAP changes (scrub "sweep" to see
+                               it change; on "frame" the latest MAP moves)
+    sim/selected/<object>      LineStrips3D (static) + Points3D [frame]: the sample selected in
+                               the viewer (`log_selected`, replaced on each call)
+
+Video: the browser's WebCodecs decodes the H.264 asset, and a browser offers WebCodecs only
+in a secure context (https, or http on localhost). The web viewer served on a non-loopback
+host is opened over plain http from elsewhere, where rerun shows "Failed to decode ...
+VideoDecoder is not defined"; there (mode "web", host not loopback) the frames are logged
+as JPEG images instead, as for a codec rerun does not play.
+
+`ControllerFeed` wires a `ui.controller.Controller` to a logger: its listener, the whole
+history of a reopened session (so its new recording continues the old one), and the MAP's
+motion, simulated off the controller's thread.
 
 Every method is a no-op in mode "off". The logger uses its own `rr.RecordingStream`,
 never the global one, and sends a default blueprint (see `_blueprint`) that is extended
@@ -25,6 +41,7 @@ sets only its own timeline before logging (a sweep row never inherits a stale fr
 """
 from __future__ import annotations
 
+import bisect
 import logging
 import socket
 import threading
@@ -50,8 +67,13 @@ FALLBACK_MAX_FRAMES = 120
 FALLBACK_JPEG_QUALITY = 80
 
 TRACK_COLORS = [(255, 80, 40), (40, 160, 255), (255, 220, 0)]   # tracked objects, in the tracks' order
-SIM_COLORS = [(230, 60, 60), (60, 120, 230), (60, 180, 90), (200, 120, 220)]
+SIM_COLORS = [(230, 60, 60), (60, 120, 230), (60, 180, 90), (200, 120, 220)]   # the selected sample
+MAP_COLORS = [(255, 170, 0), (0, 200, 200), (170, 230, 40), (255, 110, 180)]     # the MAP sample
+SIM_KINDS = {"selected": "selected", "map": "MAP"}     # sim/<kind>/<object>: legend word
 OBSERVED_COLOR = (150, 150, 150)
+LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "::1"}
+# a reopened session's convergence history: R-hat recomputed at most at this many sweeps
+HISTORY_CHECKS = 40
 
 # web viewer HTTP servers started by this process (rerun offers no way to stop one)
 _web_ports: set[int] = set()
@@ -75,6 +97,15 @@ def _finite_runs(points: np.ndarray) -> list[np.ndarray]:
                 runs.append(points[start:i])
             start = None
     return runs
+
+
+def _is_loopback(host: str) -> bool:
+    return host in LOOPBACK_HOSTS or host.startswith("127.")
+
+
+def event_text(ev: dict) -> str:
+    """How a controller event reads in the `events` log."""
+    return f"{ev['kind']}: {ev['detail']}"
 
 
 def _check_reachable(url: str, timeout_s: float = 2.0) -> None:
@@ -129,6 +160,10 @@ class RerunLogger:
         self._named: set[str] = set()             # series given a legend name
         self._last_convergence: tuple | None = None   # what log_convergence logged last
         self._closed = False
+        self._before_close: list = []             # callables run first by close() (a feed's thread)
+        # frames as JPEG images, not the H.264 asset: a browser opening the web viewer from
+        # another machine over http has no WebCodecs (secure contexts only), so no decoder
+        self.video_as_images = mode == "web" and not _is_loopback(host)
         self.stream: rr.RecordingStream | None = None
         if mode == "off":
             return
@@ -245,12 +280,55 @@ class RerunLogger:
         base = f"chains/{chain}"
         paths = [(f"{base}/loglik", loglik), *((f"{base}/{_part(n)}", v) for n, v in values.items())]
         for path, _ in paths:
-            if path not in self._named:          # legend name, once per series
-                self._named.add(path)
-                self.stream.log(path, rr.SeriesLines(names=f"chain {chain}"), static=True)
+            self._name_series(path, f"chain {chain}")
         self._at("sweep", sweep)
         for path, v in paths:
             self.stream.log(path, rr.Scalars(float(v)))
+
+    def _name_series(self, path: str, name: str) -> None:
+        """A series' legend name, once per series (static)."""
+        if path not in self._named:
+            self._named.add(path)
+            self.stream.log(path, rr.SeriesLines(names=name), static=True)
+
+    def _see(self, chains: Sequence[int], latents: Sequence[str]) -> None:
+        """Make the blueprint hold these chains and latents (re-sent at once if it did not)."""
+        with self._lock:
+            new_chains = [int(c) for c in chains if int(c) not in self._chains]
+            new_latents = [n for n in latents if n not in self._latents]
+            if new_chains or new_latents:
+                self._chains = sorted(self._chains + new_chains)
+                self._latents.extend(new_latents)
+                self._resend_blueprint()
+
+    def log_trace(self, chain: int, names: Sequence[str], samples: np.ndarray, logliks: np.ndarray,
+                  first_sweep: int = 1) -> None:
+        """A chain's whole trace at once (`send_columns`, one call per series): sample i
+        (samples (S, len(names)), logliks (S,)) at sweep first_sweep + i, the rows `log_sweep`
+        writes one sweep at a time."""
+        if not self.enabled:
+            return
+        chain = int(chain)
+        names = list(names)
+        logliks = np.asarray(logliks, np.float64).reshape(-1)
+        samples = np.asarray(samples, np.float64).reshape(len(logliks), len(names))
+        self._see([chain], names)
+        if len(logliks) == 0:
+            return
+        sweeps = [rr.TimeColumn("sweep", sequence=np.arange(first_sweep, first_sweep + len(logliks)))]
+        base = f"chains/{chain}"
+        for path, col in [(f"{base}/loglik", logliks),
+                          *((f"{base}/{_part(n)}", samples[:, j]) for j, n in enumerate(names))]:
+            self._name_series(path, f"chain {chain}")
+            self.stream.send_columns(path, indexes=sweeps, columns=rr.Scalars.columns(scalars=col))
+
+    def log_events(self, events: Sequence[dict]) -> None:
+        """Controller events ({"sweep", "kind", "detail", ...}) at `events`, in one call."""
+        if not self.enabled or not events:
+            return
+        self.stream.send_columns("events", indexes=[rr.TimeColumn("sweep", sequence=[int(e["sweep"]) for e in events])],
+                                 columns=rr.TextLog.columns(text=[event_text(e) for e in events],
+                                                            level=["INFO"] * len(events)))
 
     def log_posterior(self, names: Sequence[str], samples: np.ndarray,
                       bounds: dict[str, tuple[float, float]], bins: int = 30) -> None:
@@ -321,10 +399,13 @@ class RerunLogger:
             return
         video_path = Path(video_path)
         n_track_frames = tracks.n_frames if tracks is not None else None
-        try:
-            n_frames = self._log_video_asset(video_path)
-        except Exception as e:     # unreadable by rerun, or a codec its viewer does not play
-            log.info("rerun: %s not logged as a video asset (%s); logging decoded frames", video_path, e)
+        n_frames = None
+        if not self.video_as_images:
+            try:
+                n_frames = self._log_video_asset(video_path)
+            except Exception as e:     # unreadable by rerun, or a codec its viewer does not play
+                log.info("rerun: %s not logged as a video asset (%s); logging decoded frames", video_path, e)
+        if n_frames is None:
             n_frames = self._log_video_images(video_path, n_track_frames)
         if tracks is not None:
             self._log_tracks(tracks, n_frames)
@@ -343,6 +424,10 @@ class RerunLogger:
         self.stream.log("video", asset, static=True)
         self.stream.send_columns("video", indexes=[rr.TimeColumn("frame", sequence=np.arange(len(ts_ns)))],
                                  columns=rr.VideoFrameReference.columns_nanos(ts_ns))
+        # the blueprint opens on timeline "sweep", where the frame references above do not
+        # exist: without this row the panel reads "No data available" until one picks "frame"
+        self._at("sweep", 0)
+        self.stream.log("video", rr.VideoFrameReference(nanoseconds=int(ts_ns[0])))
         return len(ts_ns)
 
     def _log_video_images(self, video_path: Path, n_hint: int | None) -> int:
@@ -357,8 +442,12 @@ class RerunLogger:
                 step = 1 if i < FALLBACK_MAX_FRAMES else 2   # unknown length: thin out late frames
             if i % step:
                 continue
+            image = rr.Image(frame).compress(jpeg_quality=FALLBACK_JPEG_QUALITY)
             self._at("frame", i)
-            self.stream.log("video", rr.Image(frame).compress(jpeg_quality=FALLBACK_JPEG_QUALITY))
+            self.stream.log("video", image)
+            if i == 0:      # on the blueprint's timeline too (see _log_video_asset)
+                self._at("sweep", 0)
+                self.stream.log("video", image)
         return n
 
     def _log_tracks(self, tracks, n_video_frames: int | None) -> None:
@@ -416,27 +505,50 @@ class RerunLogger:
 
     # -- simulation ------------------------------------------------------------------
 
-    def log_simulation(self, traj, label: str = "selected") -> None:
-        """A simulated trajectory at sim/<object>: its path (static, replaced on each call)
-        and the object's position per frame on timeline `frame`."""
+    def log_simulation(self, traj, kind: str = "selected", sweep: int | None = None, note: str = "") -> None:
+        """A simulated trajectory at sim/<kind>/<object> (kind "selected" or "map"): its path
+        and the object's position per frame on timeline `frame` (replacing the previous
+        trajectory of that kind). The path is static, or with `sweep` logged at that sweep
+        (and at frame 0, so "frame" shows the latest), which keeps the MAP's history."""
         if not self.enabled:
             return
+        if kind not in SIM_KINDS:
+            raise ValueError(f"kind must be one of {', '.join(SIM_KINDS)}, not {kind!r}")
         pos_all = np.asarray(traj.position_m, float)
         n = pos_all.shape[1]
         if n == 0:
             return
-        self._at()
+        palette = MAP_COLORS if kind == "map" else SIM_COLORS
         for i, name in enumerate(traj.names):
-            color = SIM_COLORS[i % len(SIM_COLORS)]
-            entity = f"sim/{_part(name)}"
+            color = palette[i % len(palette)]
+            entity = f"sim/{kind}/{_part(name)}"
             pos = pos_all[i]
             ok = np.all(np.isfinite(pos), axis=1)
-            self.stream.log(entity, rr.LineStrips3D(_finite_runs(pos), colors=[color], radii=[0.003],
-                                                    labels=[f"{name} ({label})"]), static=True)
+            path = rr.LineStrips3D(_finite_runs(pos), colors=[color], radii=[0.003],
+                                   labels=[f"{name} ({SIM_KINDS[kind]}{note})"])
+            self._at()
+            if sweep is None:
+                self.stream.log(entity, path, static=True)
+            else:
+                self.stream.set_time("sweep", sequence=int(sweep))
+                self.stream.set_time("frame", sequence=0)
+                self.stream.log(entity, path)
+                self._at()
             self.stream.log(entity, rr.Points3D.from_fields(colors=[color], radii=[0.015]), static=True)
             lengths = ok.astype(int)
             self.stream.send_columns(entity, indexes=[rr.TimeColumn("frame", sequence=np.arange(n))],
                                      columns=rr.Points3D.columns(positions=pos[ok]).partition(lengths))
+
+    def log_selected(self, traj, chain: int | None = None, index: int | None = None) -> None:
+        """The sample the viewer shows (its re-simulated Trajectory) at sim/selected/<object>:
+        the callable to hand the viewer, called on each new selection."""
+        note = "" if chain is None else f", chain {chain}" + ("" if index is None else f" sample {index}")
+        self.log_simulation(traj, "selected", note=note)
+
+    def log_map(self, traj, sweep: int, chain: int | None = None, index: int | None = None) -> None:
+        """The MAP sample's simulated motion at sim/map/<object>, as found at `sweep`."""
+        note = "" if chain is None else f", chain {chain}" + ("" if index is None else f" sample {index}")
+        self.log_simulation(traj, "map", sweep=sweep, note=note)
 
     # -- lifetime --------------------------------------------------------------------
 
@@ -457,6 +569,11 @@ class RerunLogger:
         for a sink that went away."""
         if not self.enabled:
             return
+        for fn in list(self._before_close):
+            try:
+                fn()
+            except Exception:  # noqa: BLE001 - closing goes on
+                log.exception("rerun: closing %r failed", fn)
         self.flush()
         self._closed = True
         try:
@@ -469,3 +586,204 @@ class RerunLogger:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+# -- a controller's session ----------------------------------------------------------
+
+def _sweeps_at(events: Sequence[dict], rounds: int, counts: dict[int, int]):
+    """Chain sweeps at a past round, from the events' "chain_sweeps" snapshots (each pause,
+    resume, addition and removal is an event, so between two snapshots holding a chain it
+    runs every round or none: its count grows by one a round until the later one's).
+    `counts`: every chain's sweeps now (removed ones too), the last snapshot; before a
+    chain's first snapshot it counts from 0 at round 0 (a session recorded without them:
+    the chains ran together). Returns f(round) -> {chain: sweeps}."""
+    snaps = [(int(ev["sweep"]), {int(c): int(n) for c, n in ev["chain_sweeps"].items()})
+             for ev in events if isinstance(ev.get("chain_sweeps"), dict)]
+    snaps.append((int(rounds), dict(counts)))
+    snaps.sort(key=lambda s: s[0])    # stable: snapshots of one round keep their order
+
+    per_chain = {c: [(rs, snap[c]) for rs, snap in snaps if c in snap] for c in counts}
+
+    def at(r: int) -> dict[int, int]:
+        out = {}
+        for c, seen in per_chain.items():
+            i = bisect.bisect_right([rs for rs, _ in seen], r)    # seen[:i]: at or before r
+            ra, a = seen[i - 1] if i else (0, 0)
+            out[c] = a if i == len(seen) else int(a + np.clip(r - ra, 0, max(seen[i][1] - a, 0)))
+        return out
+    return at
+
+
+class ControllerFeed:
+    """Feeds a `RerunLogger` from a `ui.controller.Controller`.
+
+    - `on_controller`: the listener (`ctrl.add_listener(feed.on_controller)`): each chain's
+      sweep, every `every` rounds (default: the number of chains) the posterior of the kept
+      draws, the convergence verdict and the MAP's motion, and the events;
+    - `log_history()`: a reopened session's whole past before it goes on: every chain's trace
+      from sweep 1 (sample i at sweep i + 1, as the listener logs it live), the events, the
+      R-hat history (recomputed from the samples at the rounds a live run logs it, at most
+      HISTORY_CHECKS of them), the posterior and the MAP; the listener then skips what it
+      logged, so nothing is logged twice;
+    - the MAP's motion (sim/map/<object>) is simulated in a thread of its own, and only when
+      the MAP (chain, index) changed; `motion_model`: a zero-argument factory of an object
+      with `motion(position) -> Trajectory` (default: the scenario's likelihood, which the
+      viewer draws with too), built in that thread.
+
+    The logger's close() stops the thread (after the MAP asked for last is logged)."""
+
+    def __init__(self, logger: RerunLogger, ctrl, *, every: int | None = None, motion_model=None):
+        self.logger = logger
+        self.ctrl = ctrl
+        self.every = max(1, int(every if every is not None else len(ctrl.chain_ids())))
+        self._motion_model = motion_model
+        self._history_upto: dict[int, int] = {}   # chain -> last sweep log_history logged
+        self._history_events: set = set()         # (sweep, time, kind) of the events it logged
+        self._map_key: tuple | None = None        # (chain, index) of the MAP logged last
+        self._want: int | None = None             # a MAP check asked for, at this sweep
+        self._cv = threading.Condition()
+        self._stop = False
+        self._thread: threading.Thread | None = None
+        if logger.enabled:
+            logger._before_close.append(self.close)
+
+    # -- the listener ----------------------------------------------------------------
+
+    def on_controller(self, kind: str, payload: dict) -> None:
+        log_ = self.logger
+        if not log_.enabled:
+            return
+        if kind == "sweeps":
+            for chain, sweep, loglik, values in payload["results"]:
+                if sweep > self._history_upto.get(chain, 0):
+                    log_.log_sweep(chain, sweep, loglik, values)
+            if payload["round"] % self.every == 0:
+                self.log_posterior()
+                self.log_convergence(payload["round"])
+                self.request_map(payload["round"])
+        elif kind == "event":
+            key = (payload["sweep"], payload.get("time"), payload["kind"])
+            if key not in self._history_events:
+                log_.log_event(payload["sweep"], event_text(payload))
+            if payload["kind"] == "until_check":
+                self.log_convergence(payload["sweep"])
+            if payload["kind"] in ("until_check", "pause"):   # (chains stopped: where they got to)
+                self.request_map(payload["sweep"])
+
+    def log_posterior(self) -> None:
+        from galileo.results import burn_in
+
+        ctrl = self.ctrl
+        kept = [s[burn_in(len(s), ctrl.warmup):] for s in (ctrl.samples(c) for c in ctrl.chain_ids()) if len(s)]
+        if kept and sum(len(k) for k in kept):
+            self.logger.log_posterior(ctrl.names, np.concatenate(kept), ctrl.settings.bounds)
+
+    def log_convergence(self, sweep: int) -> None:
+        conv = self.ctrl.status()["convergence"]
+        self.logger.log_convergence(sweep, conv["r_hat"], conv["converged"])
+
+    # -- a reopened session ----------------------------------------------------------
+
+    def log_history(self) -> None:
+        """Everything the controller holds, logged as a live run would have (call it before
+        the controller runs on)."""
+        log_, ctrl = self.logger, self.ctrl
+        if not log_.enabled:
+            return
+        from galileo.results import burn_in, convergence
+
+        names = list(ctrl.names)
+        ids = ctrl.all_chain_ids()
+        log_._see(ids, names)           # (one blueprint for them all)
+        samples = {c: ctrl.samples(c) for c in ids}
+        for c in ids:
+            log_.log_trace(c, names, samples[c], ctrl.logliks(c), first_sweep=1)
+            self._history_upto[c] = len(samples[c])
+        events = ctrl.events
+        log_.log_events(events)
+        self._history_events = {(e["sweep"], e.get("time"), e["kind"]) for e in events}
+        status = ctrl.status()
+        rounds = int(status["rounds"])
+        conv_now = status["convergence"]
+        # R-hat as the listener logged it: every `every` rounds and at each until_check,
+        # from the draws the chains had then (thinned to HISTORY_CHECKS, the last kept)
+        checks = set(range(self.every, rounds + 1, self.every))
+        until = {int(e["sweep"]) for e in events if e["kind"] == "until_check"}
+        regular = sorted(checks - until)
+        if len(regular) > HISTORY_CHECKS:
+            pick = np.unique(np.linspace(0, len(regular) - 1, HISTORY_CHECKS).round().astype(int))
+            regular = [regular[i] for i in pick]
+        checks = sorted(set(regular) | until)
+        removed_at = {}
+        for e in events:
+            if e["kind"] == "remove_chain":
+                for c in e["detail"].get("chains", []):
+                    removed_at[int(c)] = int(e["sweep"])
+        at = _sweeps_at(events, rounds, {c: len(s) for c, s in samples.items()})
+        for r in checks:
+            if r == rounds:     # (now's: the controller's own verdict, below)
+                continue
+            counts = at(r)
+            kept = [samples[c][burn_in(n, ctrl.warmup):n] for c, n in sorted(counts.items())
+                    if n and removed_at.get(c, r) >= r]
+            conv = convergence(kept, names, conv_now["rhat_target"], conv_now["min_ess"])
+            log_.log_convergence(r, conv["r_hat"], conv["converged"])
+        if rounds:
+            log_.log_convergence(rounds, conv_now["r_hat"], conv_now["converged"])
+        self.log_posterior()
+        self.request_map(rounds)
+
+    # -- the MAP's motion ----------------------------------------------------------------
+
+    def request_map(self, sweep: int) -> None:
+        """Ask for the MAP's motion to be logged at `sweep` if the MAP changed (never blocks)."""
+        if not self.logger.enabled:
+            return
+        with self._cv:
+            if self._stop:
+                return
+            self._want = int(sweep)
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="rerun-map", daemon=True)
+                self._thread.start()
+            self._cv.notify_all()
+
+    def _run(self) -> None:
+        model = None
+        while True:
+            with self._cv:
+                while self._want is None and not self._stop:
+                    self._cv.wait()
+                if self._want is None:
+                    return
+                sweep, self._want = self._want, None
+            try:
+                best = self.ctrl.map()
+                if best is None or (best[0], best[1]) == self._map_key:
+                    continue
+                if model is None:
+                    model = self._make_model()
+                chain, index, values = best[0], best[1], best[2]
+                traj = model.motion(np.array([values[n] for n in self.ctrl.names], float))
+                self.logger.log_map(traj, sweep, chain, index)
+                self._map_key = (chain, index)
+            except Exception:  # noqa: BLE001 - a failed simulation must not end the feed
+                log.exception("rerun: logging the MAP's motion failed")
+
+    def _make_model(self):
+        if self._motion_model is not None:
+            return self._motion_model()
+        from galileo import registry
+
+        ctrl = self.ctrl
+        scene = ctrl.likelihood_scene
+        return registry.of(scene).likelihood(scene, ctrl.tracks, ctrl.settings.noise)
+
+    def close(self) -> None:
+        """Stop the MAP thread once it logged what was asked for (idempotent)."""
+        with self._cv:
+            self._stop = True
+            self._cv.notify_all()
+            thread = self._thread
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout=60)

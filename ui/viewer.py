@@ -50,7 +50,7 @@ CONVERGED_COLOR = "#2b8a3e"     # a latent whose R-hat and ESS hold
 RHAT_COLOR = "#c92a2a"          # R-hat above the target, or not computable yet
 ESS_COLOR = "#e8590c"           # R-hat holds, too few effective draws
 FIRST_VIEW_FOV_DEG = 50.0    # the first view: this wide, the scene filling FIRST_VIEW_FILL of it
-FIRST_VIEW_FILL = 0.85
+FIRST_VIEW_FILL = 0.7
 FIRST_VIEW_ASPECT = 4 / 3    # the narrowest window the first view plans for
 # the log-likelihood traces: each chain's log-likelihood minus the best so far, on an asinh
 # scale linear within this many nats of the best (converged chains' spread) and logarithmic
@@ -281,6 +281,7 @@ class Viewer:
         self.selection = Selection(0, 0)
         self.selection_empty = True   # nothing simulated yet
         self._lock = threading.RLock()
+        self._selection_listeners: list = []
         self._dirty = threading.Event()
         self._stop = threading.Event()
         st = controller.settings
@@ -744,6 +745,11 @@ class Viewer:
             self.selection = Selection(chain, index)
             self.traj = self.model.motion(position)
             self.resimulations += 1
+            for fn in list(self._selection_listeners):
+                try:
+                    fn(self.traj, chain, None if values is None else index)
+                except Exception:    # a logger's failure never stops the viewer
+                    log.exception("selection listener failed")
             self._pose_objects(self.frame)
             self._update_sim_lines()
             ll = self.ctrl.logliks(chain)[index] if len(samples) else float("nan")
@@ -758,6 +764,11 @@ class Viewer:
                 f"{k} = {self._fmt(k, v)}" for k, v in (values or {}).items()) + f"; log-lik {ll:.1f}{under}" + started)
             self.last_resim_s = time.perf_counter() - t0
         return self.last_resim_s
+
+    def add_selection_listener(self, fn) -> None:
+        """Call fn(trajectory, chain, index) whenever the selected sample is simulated (index None:
+        a chain with no sample yet, shown where it starts); e.g. rerun's sim/selected."""
+        self._selection_listeners.append(fn)
 
     def jump_to_map(self) -> None:
         m = self.ctrl.map()
