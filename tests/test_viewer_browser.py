@@ -234,3 +234,30 @@ def test_progress_bar_follows_the_server(viewer, page):
     bar.wait_for(timeout=10000)
     assert wait_until(lambda: abs(float(bar.get_attribute("aria-valuenow")) - viewer.progress.value) < 0.5, 10)
     assert float(bar.get_attribute("aria-valuenow")) < 100
+
+
+def test_a_reopened_session_shows_its_chains_in_the_page(demo_dir, tmp_path, browser):
+    """Defect 5 in the browser: a reopened session (its chains paused) shows its status, the
+    MAP's sample with the chain the dropdown names, and a progress bar above 0."""
+    from galileo.video import read_video
+    from ui.controller import Controller
+    from ui.viewer import Viewer
+
+    scene, tracks, _ = load_demo_frozen()
+    ctrl = Controller(scene, tracks, chains=2, seed=5, workers=1, session_dir=tmp_path / "s", sweeps=3)
+    ctrl.run_sweeps(3)
+    ctrl.close()
+    again = Controller.load(tmp_path / "s", workers=1, sweeps=3)
+    v = Viewer(again, again.likelihood_scene, tracks, read_video(demo_dir / "video.mp4")[0], port=free_port())
+    page = open_page(browser, v, {"width": 1024, "height": 768})
+    try:
+        chain, index, _, _ = again.map()
+        page.get_by_text(re.compile(r"^0 running / 2 chains")).wait_for(timeout=15000)
+        page.get_by_text(re.compile(rf"^chain {chain}, sample {index}:")).wait_for(timeout=15000)
+        assert v.chain_dropdown.value == str(chain)
+        bar = page.get_by_role("progressbar").first
+        assert wait_until(lambda: float(bar.get_attribute("aria-valuenow") or 0) > 0, 10)
+    finally:
+        page.close()
+        v.close()
+        again.close()
