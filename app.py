@@ -3,6 +3,7 @@
     python app.py                                  # the built-in demo (rendered and cached on first run)
     python app.py --scenario splash                # the splash demo: an object dropped into a tank of water
     python app.py --video V.mp4 --scene S.json     # your own video and its scene/camera file
+    python app.py --upload                         # your own video, uploaded and calibrated in the browser
     python app.py --session sessions/<name>        # reopen a recorded session (scrub it; resume its chains)
     python app.py --until-rhat 1.01 [--min-ess 400 --max-sweeps 1500]   # run on until every latent converged
 
@@ -57,6 +58,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--video", help="video file (with --scene); default: the built-in demo")
     p.add_argument("--scene", help="scene JSON whose camera describes the video")
     p.add_argument("--session", help="reopen a recorded session folder")
+    p.add_argument("--upload", action="store_true",
+                   help="upload your own video in the browser, click the ramp's four points on its first frame and "
+                        "start inference there (a new session; see ui/calibrate.py)")
     p.add_argument("--scenario", choices=sorted(DEMOS), default="ramp",
                    help="which built-in demo to run without --video/--scene (default ramp)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
@@ -86,6 +90,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.sweeps < 1:
         p.error(f"--sweeps must be >= 1, got {args.sweeps}")
+    if args.upload and (args.video or args.scene or args.session):
+        p.error("--upload brings the video and its scene from the browser: not with --video, --scene or --session")
     if args.until_rhat is not None and not args.until_rhat > 1.0:
         p.error(f"--until-rhat must be above 1 (e.g. 1.01), got {args.until_rhat:g}")
     if args.min_ess is not None and not args.min_ess >= 0:
@@ -135,16 +141,51 @@ def port_is_free(host: str, port: int) -> None:
                                f"({e.strerror or e})") from None
 
 
-def run(args) -> int:
-    import numpy as np
+def new_session(args, video_path: Path, scene_path: Path, name: str, model=None, say=print):
+    """Track the video with the scene and make a new session folder with the video copied into
+    it: (session, scene, tracks, the chains' recognition init or None). `say` reports progress."""
+    import shutil
 
+    from galileo import registry
+    from ui.session import new_session_dir
+
+    scene = registry.load_scene(scene_path)
+    say(f"tracking {video_path} ...")
+    tracks = registry.of(scene).track(video_path, scene)
+    session = new_session_dir(SESSIONS, name)
+    shutil.copyfile(video_path, session / "video.mp4")
+    # (the controller writes scene.json and tracks.json into the session; bounds: the priors')
+    init = None
+    if model is not None:
+        from galileo.recognition.model import recognition_init
+
+        init = recognition_init(model, video_path, scene, tracks, source=str(args.model or "built-in"))
+    return session, scene, tracks, init
+
+
+def start_chains(args, session: Path, scene, tracks, init=None):
+    """The new session's controller (its worker processes are forked here: call it before any
+    server thread or socket exists)."""
+    from galileo.errors import GalileoError
+    from galileo.results import MIN_ESS
+    from ui.controller import Controller
+
+    min_ess = MIN_ESS if args.min_ess is None else args.min_ess
+    try:
+        return Controller(scene, tracks, chains=args.chains, seed=args.seed, workers=args.workers,
+                          session_dir=session, init=init, moves=args.moves or "default", sweeps=args.sweeps,
+                          until_rhat=args.until_rhat, min_ess=min_ess, max_sweeps=args.max_sweeps)
+    except ValueError as e:
+        raise GalileoError(str(e)) from None
+
+
+def run(args) -> int:
     from galileo.errors import GalileoError
     from galileo import registry
-    from galileo.results import MIN_ESS, burn_in
+    from galileo.results import MIN_ESS
     from galileo.video import read_video
     from ui.controller import Controller
-    from ui.rerun_log import RRD_NAME, RerunLogger
-    from ui.session import new_session_dir
+    from ui.rerun_log import RRD_NAME, ControllerFeed, RerunLogger
     from ui.viewer import Viewer
 
     mode, url = _rerun_mode(args)
@@ -170,6 +211,16 @@ def run(args) -> int:
         video_path = session / "video.mp4"
         if not video_path.exists():
             raise GalileoError(f"session {session} has no video.mp4")
+    elif args.upload:   # the browser brings the video and its scene, then as --video --scene
+        from ui.calibrate import calibrate_in_browser
+
+        # tracking runs while the page shows its progress; the chains' workers are forked once
+        # the page's server has stopped (none of its threads or its socket in them)
+        session, scene, tracks, init = calibrate_in_browser(
+            args.host, args.port, SESSIONS, lambda v, s, n, say: new_session(args, v, s, n, model, say),
+            name=args.name)
+        ctrl = start_chains(args, session, scene, tracks, init)
+        video_path = session / "video.mp4"
     else:
         if bool(args.video) != bool(args.scene):
             raise GalileoError("give both --video and --scene (or neither, for the demo)")
@@ -180,25 +231,8 @@ def run(args) -> int:
             folder = ensure_demo(scenario=args.scenario)
             video_path, scene_path = folder / "video.mp4", folder / "scene.json"
             name = args.name or DEMOS[args.scenario].name
-        scene = registry.load_scene(scene_path)
-        print(f"tracking {video_path} ...")
-        tracks = registry.of(scene).track(video_path, scene)
-        session = new_session_dir(SESSIONS, name)
-        import shutil
-
-        shutil.copyfile(video_path, session / "video.mp4")
-        # (the controller writes scene.json and tracks.json into the session; bounds: the priors')
-        init = None
-        if model is not None:
-            from galileo.recognition.model import recognition_init
-
-            init = recognition_init(model, video_path, scene, tracks, source=str(args.model or "built-in"))
-        try:
-            ctrl = Controller(scene, tracks, chains=args.chains, seed=args.seed, workers=args.workers,
-                              session_dir=session, init=init, moves=args.moves or "default", sweeps=args.sweeps,
-                              until_rhat=args.until_rhat, min_ess=min_ess, max_sweeps=args.max_sweeps)
-        except ValueError as e:
-            raise GalileoError(str(e)) from None
+        session, scene, tracks, init = new_session(args, video_path, scene_path, name, model)
+        ctrl = start_chains(args, session, scene, tracks, init)
     video, _ = read_video(video_path)
     old_rrd = session / RRD_NAME
     if mode != "off" and old_rrd.exists():  # keep the earlier run's recording
@@ -212,29 +246,11 @@ def run(args) -> int:
     except RuntimeError as e:
         raise GalileoError(f"rerun: {e}") from None
     logger.log_video(video_path, tracks, tracks.fps)
-    names = ctrl.names
-    posterior_every = max(1, len(ctrl.chain_ids()))
-
-    def log_convergence(sweep):
-        conv = ctrl.status()["convergence"]
-        logger.log_convergence(sweep, conv["r_hat"], conv["converged"])
-
-    def on_controller(kind, payload):
-        # (each chain pauses at its --sweeps itself, the paper's protocol; Resume or --until-rhat go on)
-        if kind == "sweeps":
-            for chain, sweep, loglik, values in payload["results"]:
-                logger.log_sweep(chain, sweep, loglik, values)
-            if payload["round"] % posterior_every == 0:
-                samples = [ctrl.samples(c) for c in ctrl.chain_ids()]
-                kept = [s[burn_in(len(s), ctrl.warmup):] for s in samples if len(s)]
-                if kept and sum(len(k) for k in kept):
-                    logger.log_posterior(names, np.concatenate(kept), ctrl.settings.bounds)
-                log_convergence(payload["round"])
-        elif kind == "event":
-            logger.log_event(payload["sweep"], f"{payload['kind']}: {payload['detail']}")
-            if payload["kind"] == "until_check":
-                log_convergence(payload["sweep"])
-    ctrl.add_listener(on_controller)
+    # traces, posterior and R-hat every len(chains) rounds, events, the MAP's motion (its own thread)
+    feed = ControllerFeed(logger, ctrl)
+    if args.session:   # the new session.rrd continues the old one: every chain's sweeps from 1, events, R-hat
+        feed.log_history()
+    ctrl.add_listener(feed.on_controller)
 
     try:
         viewer = Viewer(ctrl, ctrl.likelihood_scene, tracks, video, host=args.host, port=args.port,
@@ -243,7 +259,8 @@ def run(args) -> int:
         ctrl.close()
         logger.close()
         raise
-    logger.log_simulation(viewer.traj)
+    logger.log_selected(viewer.traj)   # the sample the viewer shows, and each one the user selects
+    viewer.add_selection_listener(logger.log_selected)
     print(f"viewer: {viewer.url}")
     if logger.web_url:
         print(f"rerun web viewer: {logger.web_url}")

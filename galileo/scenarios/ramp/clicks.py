@@ -124,6 +124,7 @@ def camera_from_clicks(uv, *, width_px: int, height_px: int, fps: float, n_frame
 
 
 DEFAULT_TARGET_DISTANCE_M = 0.1   # from the ramp's foot to the target's near face
+MAX_RAMP_M = 10.0                 # a ramp's length and width at most (the scenario is a tabletop ramp)
 
 
 def scene_from_clicks(uv, *, width_px: int, height_px: int, fps: float, n_frames: int, length_m: float,
@@ -145,6 +146,9 @@ def scene_from_clicks(uv, *, width_px: int, height_px: int, fps: float, n_frames
                     ("target distance (m)", target_distance_m)):
         if v is not None and not (math.isfinite(v) and v > 0):
             raise GalileoError(f"{what} must be a positive number, got {v}")
+    for what, v in (("ramp length (m)", length_m), ("ramp width (m)", width_m)):
+        if v > MAX_RAMP_M:
+            raise GalileoError(f"{what} must be at most {MAX_RAMP_M:g} m (a tabletop ramp), got {v:g}")
     if not (math.isfinite(angle_deg) and 0 < angle_deg < 60):
         raise GalileoError(f"the ramp's angle must be in (0, 60) degrees, got {angle_deg}")
     if upper_at_m is not None and upper_at_m > length_m:
