@@ -76,3 +76,28 @@ def assert_same_decisions(fast, plain) -> None:
     assert np.array_equal(fast.proposals["proposal"], plain.proposals["proposal"])
     full = ~fast.proposals["early_stop"]
     assert np.array_equal(fast.proposals["proposal_loglik"][full], plain.proposals["proposal_loglik"][full])
+
+
+# -- real-browser tests (Debian's chromium driven by Playwright; never `playwright install`) --
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run", "--disable-quic"]
+needs_chromium = pytest.mark.skipif(not Path(CHROMIUM).exists(),
+                                    reason="Debian chromium not installed (.ci/run installs it)")
+
+
+def launch_chromium(playwright):
+    """Headless Debian chromium (software WebGL)."""
+    return playwright.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+
+
+def wait_until(condition, timeout_s: float) -> bool:
+    """Poll `condition` (state a server's threads or a page update) until true or timeout."""
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True

@@ -2,18 +2,12 @@
 the viser client connects, the sample slider is moved in the page, and the server
 re-simulates and poses the objects differently; the Chains panel shows each latent's
 converged / not converged state, coloured, and the mass ratio's posterior."""
-import shutil
-import time
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-from conftest import demo_viewer, free_port, load_demo_frozen
+from conftest import demo_viewer, free_port, launch_chromium, load_demo_frozen, needs_chromium, wait_until
 
-CHROMIUM = "/usr/bin/chromium"
-pytestmark = pytest.mark.skipif(not Path(CHROMIUM).exists() or shutil.which("chromium") is None,
-                                reason="Debian chromium not installed (.ci/run installs it)")
+pytestmark = needs_chromium
 
 
 @pytest.fixture(scope="module")
@@ -22,16 +16,6 @@ def viewer(demo_dir, tmp_path_factory):
     yield v
     v.close()
     ctrl.close()
-
-
-def wait_until(condition, timeout_s: float) -> bool:
-    """Poll `condition` (public state the viewer's threads update) until true or timeout."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.05)
-    return True
 
 
 def test_browser_scrubs_samples_and_the_scene_changes(viewer):
@@ -55,10 +39,7 @@ def test_browser_scrubs_samples_and_the_scene_changes(viewer):
         return sel > before_sel and np.array_equal(viewer.object_handles[0].position, ends[sel])
 
     with sync_playwright() as p:
-        browser = p.chromium.launch(
-            executable_path=CHROMIUM, headless=True,
-            args=["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-                  "--disable-sync", "--no-first-run", "--disable-quic"])
+        browser = launch_chromium(p)
         try:
             page = browser.new_page(viewport={"width": 1024, "height": 768})
             page.goto(viewer.url)
@@ -76,13 +57,6 @@ def test_browser_scrubs_samples_and_the_scene_changes(viewer):
             assert np.abs(ends[sel] - ends[before_sel]).max() > 1e-6, "the scene did not change"
         finally:
             browser.close()
-
-
-def launch(p):
-    return p.chromium.launch(
-        executable_path=CHROMIUM, headless=True,
-        args=["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-              "--disable-sync", "--no-first-run", "--disable-quic"])
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +85,7 @@ def test_browser_shows_each_latents_convergence_state_and_the_ratio(kept_viewer)
     conv = st["convergence"]
     assert not conv["converged"] and all(r is not None for r in conv["r_hat"].values())
     with sync_playwright() as p:
-        browser = launch(p)
+        browser = launch_chromium(p)
         try:
             page = browser.new_page(viewport={"width": 1024, "height": 900})
             page.goto(v.url)

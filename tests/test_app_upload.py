@@ -19,10 +19,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import ROOT, free_port
+from conftest import ROOT, free_port, launch_chromium, needs_chromium
 
-CHROMIUM = "/usr/bin/chromium"
-browser_test = pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="Debian chromium not installed (.ci/run installs it)")
+browser_test = needs_chromium
 
 W, H, N_FRAMES = 320, 240, 30
 LENGTH_M, WIDTH_M, ANGLE_DEG, UPPER_AT_M = 0.9, 0.3, 20.0, 0.7   # the upper corners are out of this frame
@@ -100,13 +99,6 @@ class App:
         return self.proc.returncode
 
 
-def launch(p):
-    return p.chromium.launch(
-        executable_path=CHROMIUM, headless=True,
-        args=["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-              "--disable-sync", "--no-first-run", "--disable-quic"])
-
-
 def open_page(browser, app):
     page = browser.new_page(viewport={"width": 1024, "height": 768})
     page.goto(app.url)
@@ -181,7 +173,7 @@ def test_upload_calibrate_and_infer_in_the_browser(clip, tmp_path):
     t0 = time.monotonic()
     try:
         with sync_playwright() as p:
-            browser = launch(p)
+            browser = launch_chromium(p)
             try:
                 page = open_page(browser, app)
                 upload(page, str(video))
@@ -240,7 +232,7 @@ def test_wrong_clicks_and_wrong_files_say_so_in_the_browser(clip, tmp_path):
     app = App(tmp_path, cap_bytes=TEST_CAP_BYTES)
     try:
         with sync_playwright() as p:
-            browser = launch(p)
+            browser = launch_chromium(p)
             try:
                 page = open_page(browser, app)
                 line = page.locator(".galileo-upload")

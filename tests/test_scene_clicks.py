@@ -1,15 +1,12 @@
 """`galileo scene` (issue 14): a ramp scene for your own video from four clicked points. The
 truth is a camera the video was rendered with (the demo's) or built by look_at."""
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from galileo.camera import look_at_camera
 from galileo.cli import main
-from galileo.errors import GalileoError
 from galileo.registry import load_scene
 from galileo.scenarios.ramp.clicks import camera_from_clicks, ramp_points_in_world
 

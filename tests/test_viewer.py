@@ -363,8 +363,6 @@ def test_letterbox_puts_every_pixel_where_the_pinhole_view_of_the_window_does(se
 def test_the_first_view_frames_the_scene(setup):
     """Defect 7: a new browser's first view shows the whole ramp large (at least 40% of a
     1600 x 1000 window's width), and the first sample shown is the MAP."""
-    import trimesh
-
     ctrl, v = setup
     ic = v.server.initial_camera
     pos, look = np.asarray(ic.position, float), np.asarray(ic.look_at, float)
