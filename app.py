@@ -54,7 +54,15 @@ def ensure_demo(progress: bool = True, scenario: str = "ramp") -> Path:
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description="Galileo: watch and steer physical inference from video")
+    """The command line, every value checked as it is read (galileo.cli's typed flags): a bad
+    one is one line `app: error: ...` and SystemExit(2)."""
+    from galileo.cli import (MAX_SWEEPS, Parser, chains_int, nonneg_float, port_int, rhat_float, seed_int, sweeps_int,
+                             workers_int)
+
+    class AppParser(Parser):
+        error_name = "app"
+
+    p = AppParser(description="Galileo: watch and steer physical inference from video")
     p.add_argument("--video", help="video file (with --scene); default: the built-in demo")
     p.add_argument("--scene", help="scene JSON whose camera describes the video")
     p.add_argument("--session", help="reopen a recorded session folder")
@@ -64,43 +72,49 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--scenario", choices=sorted(DEMOS), default="ramp",
                    help="which built-in demo to run without --video/--scene (default ramp)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=8080)
+    p.add_argument("--port", type=port_int, default=8080, help="port to serve on, 1-65535 (default 8080)")
     p.add_argument("--rerun", nargs="+", default=["save"], metavar="MODE",
                    help="off | save (session.rrd in the session folder) | web (also serve rerun's web viewer) "
                         "| connect URL")
-    p.add_argument("--chains", type=int, default=None,
+    p.add_argument("--chains", type=chains_int, default=None,
                    help="chains to start (default: the demo's, ramp 16, splash 50)")
-    p.add_argument("--sweeps", type=int, default=75, help="sweeps per chain before it pauses (resume to go on)")
+    p.add_argument("--sweeps", type=sweeps_int, default=75,
+                   help=f"sweeps per chain before it pauses (resume to go on; 1-{MAX_SWEEPS})")
     p.add_argument("--moves", choices=["default", "paper"], default=None,
                    help="default: widths adapted in a warm-up (the first half of --sweeps) plus the scenario's exact "
                         "joint moves; paper: Galileo section 3.2 exactly (a new session; default: default)")
-    p.add_argument("--until-rhat", type=float, default=None, metavar="R",
+    p.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
                    help="after --sweeps, run on until every latent's R-hat <= R and its bulk and tail ESS >= "
                         "--min-ess (e.g. 1.01), or until --max-sweeps; then pause")
-    p.add_argument("--min-ess", type=float, default=None, help="the ESS --until-rhat needs per latent (default 400)")
-    p.add_argument("--max-sweeps", type=int, default=None,
+    p.add_argument("--min-ess", type=nonneg_float, default=None,
+                   help="the ESS --until-rhat needs per latent (default 400)")
+    p.add_argument("--max-sweeps", type=sweeps_int, default=None,
                    help="the sweep budget of --until-rhat (default: 20 x --sweeps)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
+    p.add_argument("--seed", type=seed_int, default=0)
+    p.add_argument("--workers", type=workers_int, default=None, help="worker processes (default: all cores)")
     p.add_argument("--name", help="session name (default: the video's name; demo / splash-demo)")
     p.add_argument("--init", choices=["prior", "recognition"], default="prior",
                    help="where chains start: the prior, or what the recognition model reads in the video's "
                         "first frame (Galileo Fig. 4)")
     p.add_argument("--model", help="recognition model for --init recognition (default: the built-in ramp model)")
     args = p.parse_args(argv)
-    if args.sweeps < 1:
-        p.error(f"--sweeps must be >= 1, got {args.sweeps}")
     if args.upload and (args.video or args.scene or args.session):
         p.error("--upload brings the video and its scene from the browser: not with --video, --scene or --session")
     if args.until_rhat is not None and not args.until_rhat > 1.0:
         p.error(f"--until-rhat must be above 1 (e.g. 1.01), got {args.until_rhat:g}")
-    if args.min_ess is not None and not args.min_ess >= 0:
-        p.error(f"--min-ess must be >= 0, got {args.min_ess:g}")
     if args.max_sweeps is not None:
         if args.until_rhat is None:
             p.error("--max-sweeps is the budget of --until-rhat; without it, use --sweeps")
         if args.max_sweeps < args.sweeps:
             p.error(f"--max-sweeps must be >= --sweeps ({args.sweeps}), got {args.max_sweeps}")
+    if args.name is not None and not 0 < len(args.name.strip()) <= MAX_NAME:
+        p.error(f"--name must be 1 to {MAX_NAME} characters, got {len(args.name.strip())}")
+    from galileo.errors import GalileoError
+
+    try:
+        _rerun_mode(args)
+    except GalileoError as e:
+        p.error(str(e))
     if args.chains is None:
         from galileo import registry
 
@@ -108,37 +122,102 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
+MAX_NAME = 100     # characters of a session name (it becomes a folder name)
+
+
 def _rerun_mode(args) -> tuple[str, str | None]:
+    """(mode, URL) of --rerun; GalileoError for an unknown mode, a missing or extra URL."""
+    from galileo.errors import GalileoError
     from ui.rerun_log import MODES
 
-    mode = args.rerun[0]
+    mode, extra = args.rerun[0], args.rerun[1:]
     if mode not in MODES:
-        raise SystemExit(f"app: error: --rerun must be off, save, web or connect URL, not {mode!r}")
-    url = args.rerun[1] if len(args.rerun) > 1 else None
-    if mode == "connect" and not url:
-        raise SystemExit("app: error: --rerun connect needs a URL, e.g. rerun+http://127.0.0.1:9876/proxy")
-    return mode, url
+        raise GalileoError(f"--rerun must be off, save, web or connect URL, not {mode!r}")
+    if mode == "connect":
+        if len(extra) != 1 or not extra[0].strip():
+            raise GalileoError("--rerun connect needs one URL, e.g. rerun+http://127.0.0.1:9876/proxy")
+        return mode, extra[0]
+    if extra:
+        raise GalileoError(f"--rerun {mode} takes no URL (only connect does), got {' '.join(extra)!r}")
+    return mode, None
 
 
 def main(argv=None) -> int:
-    args = parse_args(argv)
+    try:
+        args = parse_args(argv)
+    except SystemExit as e:     # --help (0), or a refused value (2, its one line printed)
+        return e.code if isinstance(e.code, int) else 2
     from galileo.errors import run_reporting_errors
 
-    return run_reporting_errors("app", lambda: run(args))
+    def checked_run() -> int:
+        check_inputs(args)      # before tracking, rendering the demo or forking workers
+        return run(args)
+
+    return run_reporting_errors("app", checked_run)
+
+
+def check_inputs(args) -> None:
+    """What can be refused at once, before anything slow: the host resolves and the port can be
+    bound on it, the files named exist (and the scene file is valid)."""
+    from galileo.errors import GalileoError
+
+    port_is_free(args.host, args.port)
+    for flag, path, kind in (("--video", args.video, "file"), ("--scene", args.scene, "file"),
+                             ("--model", args.model, "file"), ("--session", args.session, "folder")):
+        if path is None:
+            continue
+        p = Path(path)
+        if not p.exists():
+            raise GalileoError(f"{flag}: {path} not found")
+        if kind == "file" and not p.is_file():
+            raise GalileoError(f"{flag}: {path} is not a file")
+        if kind == "folder" and not p.is_dir():
+            raise GalileoError(f"{flag}: {path} is not a session folder")
+    if args.scene:
+        from galileo import registry
+
+        registry.load_scene(args.scene)
 
 
 def port_is_free(host: str, port: int) -> None:
-    """Refuse a port another program holds (the viewer would otherwise move to the next one)."""
+    """Refuse a host that does not resolve to an address of this machine, or a port another
+    program holds on it (the viewer would otherwise move to the next one); bound as the
+    viewer's server will bind (every address the host resolves to, address reuse on, an
+    address family the machine lacks skipped)."""
+    import errno
     import socket
 
+    from galileo.cli import check_host
     from galileo.errors import GalileoError
 
-    with socket.socket() as s:
-        try:
-            s.bind((host, port))
-        except OSError as e:
-            raise GalileoError(f"port {port} on {host} is taken (another app running?); choose another with --port "
-                               f"({e.strerror or e})") from None
+    if not (isinstance(port, int) and 1 <= port <= 65535):
+        raise GalileoError(f"--port must be 1-65535, got {port!r}")
+    addrs = check_host(host)
+    bound = 0
+    last = None
+    for family, _, _, _, sockaddr in dict.fromkeys((a[0], a[1], a[2], a[3], a[4]) for a in addrs):
+        with socket.socket(family, socket.SOCK_STREAM) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if family == socket.AF_INET6 and hasattr(socket, "IPV6_V6ONLY"):
+                s.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            try:
+                s.bind((sockaddr[0], port, *sockaddr[2:]))
+                bound += 1
+            except OSError as e:
+                if e.errno == errno.EADDRINUSE:
+                    raise GalileoError(f"port {port} on {host} is taken (another app running?); choose another with "
+                                       f"--port ({e.strerror or e})") from None
+                if e.errno == errno.EACCES:
+                    raise GalileoError(f"port {port} on {host}: permission denied (ports below 1024 need "
+                                       "privileges); choose another with --port") from None
+                if e.errno != errno.EADDRNOTAVAIL:
+                    raise GalileoError(f"--host {host}: cannot serve on port {port} there "
+                                       f"({e.strerror or e})") from None
+                last = e
+    if not bound:
+        why = last.strerror if last is not None else "no address"
+        raise GalileoError(f"--host {host} is not an address of this machine ({why}); use 127.0.0.1 (this machine "
+                           "only) or 0.0.0.0 (every interface)")
 
 
 def new_session(args, video_path: Path, scene_path: Path, name: str, model=None, say=print):

@@ -8,7 +8,7 @@ from typing import Iterable
 import numpy as np
 
 from .errors import SceneError
-from .fields import matrix, number
+from .fields import Bound, matrix, number, show, unknown_fields
 
 
 @dataclass(frozen=True)
@@ -78,17 +78,101 @@ def backproject_to_plane(cam: Camera, uv: np.ndarray, y_plane_m: float) -> np.nd
 
 
 
-def camera_from_json(d: dict) -> Camera:
+# -- what a camera may be: every bound in one place, each with its reason -----------------------
+
+IMAGE_SIDE_PX = Bound(16, 16384, integer=True)   # width and height: 16 px (less shows no object to track) to
+# 16384 px (about twice 8K video's width; the tracker holds whole frames in memory)
+FPS = Bound(1.0, 1000.0)                        # frames a second: at least 1 (frames further apart show no motion
+# to take a velocity from, and a frame would be up to sim_hz physics steps), at most 1000 (a high-speed camera;
+# sim_hz is a multiple of it)
+N_FRAMES = Bound(1, 100_000, integer=True)       # 100000 frames: 55 min at 30 fps (an experiment lasts seconds);
+# the trajectories and tracks hold every frame in memory
+FOCAL_PX = Bound(1.0, 1e5)                       # a focal length below 1 px sees more than 179 degrees (no
+# pinhole camera); above 1e5 px a 640 px wide image sees 0.4 degrees (beyond any telephoto lens)
+MAX_SKEW = 0.01                                  # |K[0][1]| at most this x fx: real cameras have square pixels
+# (OpenCV calibrates skew 0); a little is tolerated for calibrations that fit it
+PRINCIPAL_POINT_MARGIN = 0.5                     # the principal point lies in the image or at most half its
+# width (height) outside it (a crop of a larger frame), never far beyond
+ROTATION_TOL = 1e-6                              # R R^T = I and det R = +1 within this (what 7 printed digits keep)
+CAMERA_DISTANCE_M = 1000.0                       # the camera at most 1 km from the world's origin: a tabletop
+# experiment is filmed from metres away (from 1 km a 10 cm object is 10 px even at the longest focal length)
+CAMERA_FIELDS = ("K", "world_to_camera", "width_px", "height_px", "fps", "n_frames")
+
+
+def _entry(bound: Bound, v: float, where: str, what: str) -> None:
+    if not bound.contains(v):
+        raise SceneError(f"{where}: {what} = {show(v)} is outside {bound}")
+
+
+def check_camera(cam: Camera, path: str = "camera") -> None:
+    """SceneError naming the field if `cam` is no proper pinhole camera: K an intrinsic matrix
+    (fx, fy in FOCAL_PX, skew small, K[1][0] = 0, last row [0, 0, 1], principal point in or near
+    the image), world_to_camera a rigid transform (R orthonormal with det +1, last row
+    [0, 0, 0, 1], the camera within CAMERA_DISTANCE_M), image size, fps and n_frames in range."""
+    w = IMAGE_SIDE_PX.check(cam.width_px, f"{path}.width_px")
+    h = IMAGE_SIDE_PX.check(cam.height_px, f"{path}.height_px")
+    FPS.check(cam.fps, f"{path}.fps")
+    N_FRAMES.check(cam.n_frames, f"{path}.n_frames")
+    k = np.asarray(cam.K, dtype=float)
+    if k.shape != (3, 3) or not np.all(np.isfinite(k)):
+        raise SceneError(f"{path}.K: expected a 3x3 matrix of finite numbers")
+    _entry(FOCAL_PX, k[0, 0], f"{path}.K", "fx = K[0][0]")
+    _entry(FOCAL_PX, k[1, 1], f"{path}.K", "fy = K[1][1]")
+    if abs(k[0, 1]) > MAX_SKEW * k[0, 0]:
+        raise SceneError(f"{path}.K: the skew K[0][1] = {show(k[0, 1])} is outside [-{MAX_SKEW:g}, {MAX_SKEW:g}] x fx")
+    if abs(k[1, 0]) > 1e-9 * k[1, 1] or np.abs(k[2] - (0.0, 0.0, 1.0)).max() > 1e-9:
+        raise SceneError(f"{path}.K: expected an intrinsic matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]], "
+                         f"got rows {show(k[1].tolist())} and {show(k[2].tolist())}")
+    for i, (name, side) in enumerate((("cx", w), ("cy", h))):
+        _entry(Bound(-PRINCIPAL_POINT_MARGIN * side, (1 + PRINCIPAL_POINT_MARGIN) * side), k[i, 2], f"{path}.K",
+               f"the principal point's {name} = K[{i}][2]")
+    m = np.asarray(cam.world_to_camera, dtype=float)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise SceneError(f"{path}.world_to_camera: expected a 4x4 matrix of finite numbers")
+    if np.abs(m[3] - (0.0, 0.0, 0.0, 1.0)).max() > 1e-9:
+        raise SceneError(f"{path}.world_to_camera: expected a rigid transform, its last row [0, 0, 0, 1], "
+                         f"got {show(m[3].tolist())}")
+    r = m[:3, :3]
+    if np.abs(r @ r.T - np.eye(3)).max() > ROTATION_TOL:
+        raise SceneError(f"{path}.world_to_camera: expected a rigid transform, its 3x3 rotation orthonormal "
+                         f"(R R^T = I within {ROTATION_TOL:g})")
+    det = float(np.linalg.det(r))
+    if not abs(det - 1.0) <= ROTATION_TOL * 10:
+        raise SceneError(f"{path}.world_to_camera: expected a rotation with determinant +1, got {det:.6g} "
+                         f"(a mirror image)")
+    dist = float(np.linalg.norm(r.T @ m[:3, 3]))
+    if dist > CAMERA_DISTANCE_M:
+        raise SceneError(f"{path}.world_to_camera: the camera is {dist:g} m from the world's origin, beyond "
+                         f"{CAMERA_DISTANCE_M:g} m")
+
+
+def camera_from_json(d: dict, path: str = "camera") -> Camera:
     """Parse and check a scene file's `camera` object (SceneError naming the field)."""
-    p = "camera"
+    p = path
+    if not isinstance(d, dict):
+        raise SceneError(f"{p}: expected an object, got {show(d)}")
+    unknown_fields(d, CAMERA_FIELDS, p)
     k = matrix(d, "K", p, (3, 3))
     m = matrix(d, "world_to_camera", p, (4, 4))
-    r = m[:3, :3]
-    if not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or not np.allclose(m[3], [0, 0, 0, 1]):
-        raise SceneError("camera.world_to_camera: expected a rigid transform (rotation + translation)")
-    if k[0, 0] <= 0 or k[1, 1] <= 0:
-        raise SceneError("camera.K: focal lengths must be positive")
-    return Camera(k, m, number(d, "width_px", p, lo=1, integer=True), number(d, "height_px", p, lo=1, integer=True),
-                  number(d, "fps", p, lo=0, lo_open=True), number(d, "n_frames", p, lo=1, integer=True))
+    cam = Camera(k, m, number(d, "width_px", p, bound=IMAGE_SIDE_PX), number(d, "height_px", p, bound=IMAGE_SIDE_PX),
+                 number(d, "fps", p, bound=FPS), number(d, "n_frames", p, bound=N_FRAMES))
+    check_camera(cam, p)
+    return cam
 
 
+def check_run(sim_hz: float, fps: float, n_frames: int, max_steps: int, start_step: int = 0,
+              names: tuple[str, str] = ("camera.fps", "camera.n_frames")) -> None:
+    """SceneError unless a video of `n_frames` at `fps` can be simulated at `sim_hz`: fps in
+    FPS, n_frames in N_FRAMES, sim_hz a multiple of fps, and at most `max_steps` physics steps
+    in all (`start_step` of them before frame 0). `names` name fps and n_frames in messages
+    (the scene file's fields, or a command's flags)."""
+    fps_name, frames_name = names
+    FPS.check(fps, fps_name)
+    N_FRAMES.check(n_frames, frames_name)
+    spf = sim_hz / fps
+    if abs(spf - round(spf)) > 1e-9:
+        raise SceneError(f"sim_hz ({sim_hz:g}) must be a multiple of {fps_name} ({fps:g})")
+    steps = int(start_step + (n_frames - 1) * round(spf))
+    if steps > max_steps:
+        raise SceneError(f"{frames_name}: {n_frames} frames at {fps:g} fps are {steps} physics steps at "
+                         f"sim_hz {sim_hz:g}, more than {max_steps} (shorten the video or lower sim_hz)")

@@ -1,15 +1,222 @@
 """The `galileo` command line (also `python -m galileo`).
 
-Every user error (bad file, bad value) prints one line `galileo: error: ...` and exits
-with code 2; no traceback.
+Every user error (bad file, bad value, bad flag) prints one line `galileo: error: ...` and
+exits with code 2; no traceback, no usage block. Flags are read by `Parser` (one-line errors,
+subcommands included) as typed, bounded values (`bounded`, `out_file`, `out_dir`, below; app.py
+uses them too), so a wrong one is refused before anything slow runs or any file is written.
 """
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
 from .errors import GalileoError, run_reporting_errors
+
+
+# -- flags: one parser class and the typed values every flag is read as (app.py's too) ---------------
+#
+# A value that cannot be right is refused while the command line is read, before anything slow
+# (tracking, simulation, sampling) and before any file is written, in one line naming the flag.
+
+MAX_FRAMES = 100_000        # frames one simulation writes (--frames, --duration-s x --fps, a scene's video)
+MAX_FPS = 1000.0
+MAX_SEED = 2**32 - 1
+MAX_CHAINS = 1000
+MAX_SWEEPS = 100_000        # --sweeps, --max-sweeps, --warmup, --broad-every, --recognition-move
+MAX_WORKERS = 256
+MAX_COUNT = 100_000         # calibrate's --n and --draws
+WIDTH_RANGES = 100          # a proposal width at most this many times its latent's prior range
+
+
+def one_line(message) -> str:
+    return " ".join(str(message).split())
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse whose every error, its subcommands' included (argparse makes subparsers of the
+    parent's class), is one line `NAME: error: ...` on stderr and exit code 2; no usage block."""
+    error_name = "galileo"
+
+    def error(self, message: str):
+        message = one_line(message)
+        if message.startswith("argument "):     # "argument --fps: must be ..." reads "--fps must be ..."
+            flag, _, rest = message[len("argument "):].partition(": ")
+            message = f"{flag} {rest}" if rest.startswith("must ") else f"{flag}: {rest}"
+        self.exit(2, f"{self.error_name}: error: {message}\n")
+
+
+def _number(text, integer: bool) -> float | int:
+    s = str(text).strip()
+    try:
+        if integer:
+            return int(s, 10)
+        v = float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {'an integer' if integer else 'a number'}, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
+
+
+def bounded(low=None, high=None, *, integer: bool = False, low_open: bool = False, name: str = "number"):
+    """An argparse `type=`: the text as an int or a finite float in [low, high] ((low, high] with
+    `low_open`); argparse prefixes its one-line refusal with the flag's name."""
+    def parse(text):
+        v = _number(text, integer)
+        if low is not None and (v < low or (low_open and v == low)):
+            raise argparse.ArgumentTypeError(f"must be {'above' if low_open else 'at least'} {low:g}, got {text!r}")
+        if high is not None and v > high:
+            raise argparse.ArgumentTypeError(f"must be at most {high:g}, got {text!r}")
+        return v
+    parse.__name__ = name
+    return parse
+
+
+finite_float = bounded(name="finite_float")
+positive_float = bounded(0.0, low_open=True, name="positive_float")
+nonneg_float = bounded(0.0, name="nonneg_float")
+positive_int = bounded(1, integer=True, name="positive_int")
+nonneg_int = bounded(0, integer=True, name="nonneg_int")
+seed_int = bounded(0, MAX_SEED, integer=True, name="seed")
+chains_int = bounded(1, MAX_CHAINS, integer=True, name="chains")
+sweeps_int = bounded(1, MAX_SWEEPS, integer=True, name="sweeps")
+every_int = bounded(0, MAX_SWEEPS, integer=True, name="every")
+workers_int = bounded(1, MAX_WORKERS, integer=True, name="workers")
+count_int = bounded(1, MAX_COUNT, integer=True, name="count")
+frames_int = bounded(1, MAX_FRAMES, integer=True, name="frames")
+fps_float = bounded(0.0, MAX_FPS, low_open=True, name="fps")
+rhat_float = bounded(1.0, 10.0, low_open=True, name="rhat")
+port_int = bounded(1, 65535, integer=True, name="port")
+
+
+def _type(check):
+    """An argparse `type=` from a check that raises GalileoError."""
+    def parse(text):
+        try:
+            return check(text)
+        except GalileoError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+    parse.__name__ = check.__name__
+    return parse
+
+
+def _writable_place(target: Path, folder: Path, what: str) -> None:
+    """`folder`, or where it does not exist yet its nearest existing parent, takes a new file
+    (probed: a temporary file made and removed there, as the atomic write will make one)."""
+    import os
+    import tempfile
+
+    anc = folder
+    while not anc.exists() and anc.parent != anc:
+        anc = anc.parent
+    if not anc.is_dir():
+        raise GalileoError(f"cannot write {what} {target}: {anc} is not a folder")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".galileo-probe.", suffix=".tmp", dir=anc)
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as e:
+        raise GalileoError(f"cannot write {what} {target}: {anc} takes no new file ({e.strerror or e})") from None
+
+
+def check_out_file(text: str, what: str = "file") -> str:
+    """`text` names a file that can be written (atomically): not empty, not a folder, in a
+    place that takes a new file. Returns it unchanged."""
+    import os
+
+    if not str(text).strip():
+        raise GalileoError(f"expected a {what} name, got an empty one")
+    path = Path(text)
+    if str(text).endswith(("/", os.sep)) or path.name in ("", ".", ".."):
+        raise GalileoError(f"{text!r} names a folder; expected a {what} name")
+    if path.is_dir():
+        raise GalileoError(f"{text} is a folder; expected a {what} name")
+    if path.exists() and not path.is_file():
+        raise GalileoError(f"{text} exists and is not a regular file; expected a {what} name")
+    _writable_place(path, path.parent, what)
+    return str(text)
+
+
+def check_out_dir(text: str, what: str = "folder") -> str:
+    """`text` names a folder that exists or can be made, and takes new files."""
+    if not str(text).strip():
+        raise GalileoError(f"expected a {what} name, got an empty one")
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise GalileoError(f"{text} is a file; expected a {what}")
+    _writable_place(path, path, what)
+    return str(text)
+
+
+def check_host(host: str, timeout_s: float = 10.0) -> list[tuple]:
+    """The addresses `host` resolves to (getaddrinfo's, for binding), within `timeout_s`: an
+    unknown name or a malformed address is a GalileoError, never a wait."""
+    import socket
+    import threading
+
+    if not str(host).strip():
+        raise GalileoError("--host: expected an address or a name, got an empty one")
+    box: dict = {}
+
+    def resolve():
+        try:
+            box["addrs"] = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+        except (OSError, UnicodeError, ValueError) as e:
+            box["error"] = e
+
+    t = threading.Thread(target=resolve, daemon=True)
+    t.start()
+    t.join(timeout_s)
+    if t.is_alive():
+        raise GalileoError(f"--host {host!r}: the name did not resolve within {timeout_s:g} s")
+    if "error" in box:
+        e = box["error"]
+        raise GalileoError(f"--host {host!r} is not an address or a known name "
+                           f"({getattr(e, 'strerror', None) or e})")
+    if not box.get("addrs"):
+        raise GalileoError(f"--host {host!r} resolves to no address")
+    return box["addrs"]
+
+
+def check_nonempty(text: str) -> str:
+    if not str(text).strip():
+        raise GalileoError("expected a name, got an empty one")
+    return str(text)
+
+
+out_file = _type(check_out_file)
+out_dir = _type(check_out_dir)
+
+
+def check_not_an_input(args: argparse.Namespace) -> None:
+    """No output flag names one of the command's input files, or another output (that would
+    overwrite an input, or one output with the other)."""
+    import os
+
+    def same(a: str, b: str) -> bool:
+        if os.path.realpath(a) == os.path.realpath(b):
+            return True
+        try:
+            return os.path.samefile(a, b)
+        except OSError:
+            return False
+
+    ins = [getattr(args, k, None) for k in ("video", "scene", "tracks", "result", "model", "slurm", "scenes")]
+    seen = []
+    for k in ("out", "debug_video"):
+        out = getattr(args, k, None)
+        if not isinstance(out, str) or not out:
+            continue
+        flag = f"--{k.replace('_', '-')}"
+        for src in ins:
+            if isinstance(src, str) and src and Path(src).is_file() and same(out, src):
+                raise GalileoError(f"{flag} {out} is also an input of this command: refusing to overwrite it")
+        for other_flag, other in seen:
+            if same(out, other):
+                raise GalileoError(f"{flag} and {other_flag} name the same file {out}")
+        seen.append((flag, out))
 
 
 def _parse_set(items: list[str]) -> dict[str, float]:
@@ -19,10 +226,39 @@ def _parse_set(items: list[str]) -> dict[str, float]:
         if not sep:
             raise GalileoError(f"--set {item!r}: expected NAME=VALUE")
         try:
-            out[name.strip()] = float(value)
+            v = float(value)
         except ValueError:
             raise GalileoError(f"--set {item!r}: {value!r} is not a number") from None
+        if not math.isfinite(v):
+            raise GalileoError(f"--set {item!r}: expected a finite number, got {value.strip()!r}")
+        if not name.strip():
+            raise GalileoError(f"--set {item!r}: expected NAME=VALUE")
+        out[name.strip()] = v
     return out
+
+
+def checked_scene(scenario, scene, what: str):
+    """`scene` read back through the scenario's own loader (every field's type and range, as a
+    scene file's): values set on the command line pass the checks a file would. SceneError
+    becomes one line naming `what` set them."""
+    import json
+
+    from .errors import SceneError
+    from .jsonio import _default
+
+    try:
+        return scenario.scene_from_json(json.loads(json.dumps(scene.to_json(), default=_default)))
+    except (SceneError, ValueError) as e:
+        raise GalileoError(f"{what}: {e}") from None
+
+
+def frame_count(n, why: str) -> int:
+    """`n` frames (a float from duration x fps, or an int), refused past MAX_FRAMES."""
+    if not (n >= 1):
+        raise GalileoError(f"{why}: need at least one frame")
+    if not (n <= MAX_FRAMES):
+        raise GalileoError(f"{why}: {n:.6g} frames; at most {MAX_FRAMES} in one simulation")
+    return int(n)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -41,21 +277,27 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                               friction=args.friction if args.friction is not None else 0.2,
                               target=args.target or "none")
     scenario = registry.of(scene)
+    if args.frames is not None and args.duration_s is not None:
+        raise GalileoError("give --frames or --duration-s, not both")
     values = _parse_set(args.set)
     if values:
         scene = scenario.with_values(scene, values)
+        scene = checked_scene(scenario, scene, f"--set {', '.join(args.set)}")
+    elif not args.scene:
+        scene = checked_scene(scenario, scene, "the quick form's scene (--angle-deg, --mass, --friction)")
     timing = scenario.video_timing(scene)   # (fps, n_frames) of the scene's video, if it says
-    fps = args.fps or (timing[0] if timing else 30.0)
+    fps = args.fps if args.fps is not None else (timing[0] if timing else 30.0)
     if args.frames is not None:
         n = args.frames
     elif args.duration_s is not None:
-        n = int(round(args.duration_s * fps)) + 1
+        n = frame_count(round(args.duration_s * fps) + 1, f"--duration-s {args.duration_s:g} at {fps:g} fps")
     elif timing is not None:
-        n = timing[1]
+        n = frame_count(timing[1], f"the scene's video ({timing[1]} frames; give --frames)")
     else:
         n = int(round(2.0 * fps)) + 1
-    if n < 1:
-        raise GalileoError("need at least one frame")
+    check = getattr(scene, "check_simulation", None)    # (optional in a scenario's scene: ramp and splash have it)
+    if check is not None:
+        check(n, fps, ("--fps", "--frames"))    # sim_hz a multiple of fps; at most MAX_STEPS physics steps
     traj = scenario.simulate(scene, n, fps=fps)
     traj.save(args.out)
     print(f"wrote {n} frames of {len(traj.names)} object(s) at {fps:g} fps to {args.out}")
@@ -95,12 +337,10 @@ def cmd_infer(args: argparse.Namespace) -> int:
     from .results import warning_of
     from .runner import RunConfig, infer
 
-    if (args.chains is not None and args.chains < 1) or (args.sweeps is not None and args.sweeps < 1):
-        raise GalileoError("--chains and --sweeps must be at least 1")   # before tracking, which takes a while
-    if args.sigma is not None and not args.sigma > 0:
-        raise GalileoError("--sigma must be positive")
     if Path(args.video).is_dir():
         return infer_folder(args)
+    out = Path(check_out_file(args.out, "result file"))   # before tracking and sampling, which take a while
+    check_out_file(str(out.with_name(out.stem + ".samples.npz")), "samples file")
     if args.scene is None:
         raise GalileoError("--scene is needed for a video (a folder of videos may instead hold one scene.json per "
                            "subfolder)")
@@ -118,10 +358,7 @@ def cmd_infer(args: argparse.Namespace) -> int:
     if args.max_sweeps is not None and args.until_rhat is None:
         raise GalileoError("--max-sweeps is the budget of --until-rhat; without it, use --sweeps")
     cfg.check()
-    try:
-        cfg.settings(scenario.latents(scene), scenario.noise)
-    except ValueError as e:
-        raise GalileoError(str(e)) from None
+    checked_settings(cfg, scenario, scene)
     if args.recognition_move is not None and args.recognition_move < 1:
         raise GalileoError("--recognition-move must be at least 1 (every how many sweeps)")
     if args.recognition_move and args.init != "recognition":
@@ -175,14 +412,17 @@ def infer_folder(args: argparse.Namespace) -> int:
     if not args.out:
         raise GalileoError("--out FOLDER is needed for a folder of videos (one result file per video)")
     batch.out_folder(Path(args.out))
+    check_out_dir(args.out, "results folder")
     videos = batch.folder_videos(args.video, args.scene)
-    protocol = registry.of(registry.load_scene(videos[0][2])).protocol
+    first = registry.load_scene(videos[0][2])
+    protocol = registry.of(first).protocol
     cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
                     sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps, seed=args.seed, workers=1,
                     noise=args.sigma, speedups=not args.no_speedups, narrow=args.narrow, broad=args.broad,
                     broad_every=args.broad_every, moves=args.moves, warmup=args.warmup, until_rhat=args.until_rhat,
                     min_ess=args.min_ess, max_sweeps=args.max_sweeps, priors=priors_arg(args.priors))
     cfg.check()
+    checked_settings(cfg, registry.of(first), first)
     log = (lambda m: print(m, file=sys.stderr)) if not args.quiet else None
     with batch.open_client(args.workers, args.scheduler, slurm_arg(args.slurm), log=log) as client:
         done = batch.infer_folder(args.video, args.scene, cfg, args.out, client,
@@ -199,6 +439,29 @@ def infer_folder(args: argparse.Namespace) -> int:
     return 0
 
 
+def checked_settings(cfg, scenario, scene):
+    """The run's sampler settings checked by the library's one rule (latents.check_noise for
+    --sigma, check_widths for --narrow/--broad/--broad-every, check_bounds for --priors); a
+    width given on the command line more than WIDTH_RANGES times a latent's prior range is
+    refused too (its proposals would almost never land inside the prior: chains that never
+    move, as a width of 0 makes chains that accept everything)."""
+    latents = scenario.latents(scene)
+    try:
+        settings = cfg.settings(latents, scenario.noise)
+    except ValueError as e:
+        raise GalileoError(str(e)) from None
+    for flag, given, w in (("--narrow", cfg.narrow, settings.narrow), ("--broad", cfg.broad, settings.broad)):
+        if given is None:
+            continue
+        ws = w if isinstance(w, tuple) else (w,) * len(latents)
+        for lat, width in zip(latents, ws):
+            lo, hi = settings.bounds[lat.name]
+            if width > WIDTH_RANGES * (hi - lo):
+                raise GalileoError(f"{flag} {width:g} is more than {WIDTH_RANGES} times {lat.name}'s prior range "
+                                   f"({hi - lo:g} {lat.unit}): its proposals would almost never land inside the prior")
+    return settings
+
+
 def priors_arg(text: str | None) -> dict | None:
     """--priors: a JSON object merged into the scene file's priors section."""
     import json
@@ -207,10 +470,12 @@ def priors_arg(text: str | None) -> dict | None:
         return None
     try:
         d = json.loads(text)
+    except RecursionError:
+        raise GalileoError("--priors: nested too deeply to read") from None
     except ValueError as e:
-        raise GalileoError(f"--priors: not JSON: {e}") from None
+        raise GalileoError(f"--priors: not JSON: {one_line(e)[:200]}") from None
     if not isinstance(d, dict):
-        raise GalileoError(f"--priors: expected a JSON object, got {text!r}")
+        raise GalileoError(f"--priors: expected a JSON object, got {one_line(text)[:200]!r}")
     return d
 
 
@@ -225,10 +490,13 @@ def cmd_predict(args: argparse.Namespace) -> int:
     import json
 
     from . import registry
-    from .jsonio import read_json, write_json
+    from .jsonio import write_json
+    from .results import read_result_json
 
-    d = read_json(args.result, "result file")
-    scenario = registry.get(d.get("scenario", registry.DEFAULT) if isinstance(d, dict) else registry.DEFAULT)
+    if args.angle_deg is not None and not 0 <= args.angle_deg < 90:
+        raise GalileoError(f"--angle-deg must be in [0, 90), got {args.angle_deg:g}")
+    d = read_result_json(args.result)       # a dict with a known scenario, or a one-line error
+    scenario = registry.get(d.get("scenario", registry.DEFAULT))
     out = scenario.predict(args.result, {"angle_deg": args.angle_deg, "target": args.target, "scene": args.scene})
     text = json.dumps(out, indent=1)
     if args.out:
@@ -528,7 +796,7 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="galileo", description="Physical object properties from video: "
+    p = Parser(prog="galileo", description="Physical object properties from video: "
                                 "Bullet simulations inside MCMC (Galileo, NIPS 2015).")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -537,31 +805,34 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="override a latent or another value of the scene (repeatable; `galileo scenarios` "
                         "lists each scenario's latents)")
-    s.add_argument("--angle-deg", type=float, help="quick form: ramp angle (default 20)")
-    s.add_argument("--friction", type=float, help="quick form: ramp object's friction (default 0.2)")
-    s.add_argument("--mass", type=float, help="quick form: ramp object's mass in kg (default 0.5)")
+    s.add_argument("--angle-deg", type=finite_float, help="quick form: ramp angle (default 20)")
+    s.add_argument("--friction", type=nonneg_float, help="quick form: ramp object's friction (default 0.2)")
+    s.add_argument("--mass", type=positive_float, help="quick form: ramp object's mass in kg (default 0.5)")
     s.add_argument("--target", choices=["none", "cardboard", "foam"], help="quick form: target (default none)")
-    s.add_argument("--duration-s", type=float, help="simulated time (default: the scene's video length, else 2 s)")
-    s.add_argument("--frames", type=int, help="number of frames instead of --duration-s")
-    s.add_argument("--fps", type=float, help="output frame rate (default: the scene's video's, else 30)")
-    s.add_argument("--out", required=True, help="trajectory JSON to write")
+    s.add_argument("--duration-s", type=positive_float,
+                   help="simulated time (default: the scene's video length, else 2 s)")
+    s.add_argument("--frames", type=frames_int, help=f"number of frames instead of --duration-s (at most {MAX_FRAMES})")
+    s.add_argument("--fps", type=fps_float, help=f"output frame rate (default: the scene's video's, else 30; at most "
+                   f"{MAX_FPS:g})")
+    s.add_argument("--out", required=True, type=out_file, help="trajectory JSON to write")
     s.set_defaults(func=cmd_simulate)
 
     d = sub.add_parser("dataset", help="render Physics-101-style videos (ramp or splash) with ground truth")
     d.add_argument("--scenario", choices=["ramp", "splash"], default="ramp",
                    help="ramp (default) or splash: objects dropped into a tank of water")
     d.add_argument("--preset", choices=["demo", "small", "full"], default="demo")
-    d.add_argument("--out", required=True, help="output folder")
-    d.add_argument("--seed", type=int, default=0)
-    d.add_argument("--workers", type=int, default=None, help="render processes (default: all cores)")
+    d.add_argument("--out", required=True, type=out_dir, help="output folder")
+    d.add_argument("--seed", type=seed_int, default=0)
+    d.add_argument("--workers", type=workers_int, default=None, help="render processes (default: all cores)")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=cmd_dataset)
 
     t = sub.add_parser("track", help="track the objects of a video: positions and velocities in metres")
     t.add_argument("video", help="video file (any format FFmpeg reads)")
     t.add_argument("--scene", required=True, help="scene JSON whose camera describes the video")
-    t.add_argument("--out", required=True, help="tracks JSON to write")
-    t.add_argument("--debug-video", help="also write the video with features, centres and trails drawn (MP4)")
+    t.add_argument("--out", required=True, type=out_file, help="tracks JSON to write")
+    t.add_argument("--debug-video", type=out_file,
+                   help="also write the video with features, centres and trails drawn (MP4)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_track)
 
@@ -571,40 +842,43 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--scene", help="scene JSON describing the video (for the ramp: its camera); for a folder of "
                    "videos, the one scene they were all filmed in (default: each subfolder's scene.json)")
     i.add_argument("--tracks", help="tracks JSON from `galileo track` (default: track the video first)")
-    i.add_argument("--chains", type=int, default=None, help="chains (default: the scenario's protocol, ramp 16, "
+    i.add_argument("--chains", type=chains_int, default=None, help="chains (default: the scenario's protocol, ramp 16, "
                    "splash 50)")
-    i.add_argument("--sweeps", type=int, default=None, help="sweeps per chain (default: 75)")
-    i.add_argument("--seed", type=int, default=0)
-    i.add_argument("--workers", type=int, default=None,
+    i.add_argument("--sweeps", type=sweeps_int, default=None, help="sweeps per chain (default: 75)")
+    i.add_argument("--seed", type=seed_int, default=0)
+    i.add_argument("--workers", type=workers_int, default=None,
                    help="worker processes (default: all cores; for a folder of videos, the local Dask cluster's)")
-    i.add_argument("--sigma", type=float, default=None,
+    i.add_argument("--sigma", type=positive_float, default=None,
                    help="likelihood noise SD (default: the scenario's; the ramp's is 0.05 m/s per velocity component)")
-    i.add_argument("--narrow", type=float, help="half-width of the usual proposal (default: the latents', 0.05)")
-    i.add_argument("--broad", type=float, help="half-width of the periodic broad proposal (default: the latents', 0.5)")
-    i.add_argument("--broad-every", type=int, help="every how many sweeps the broad one is used (default 20)")
+    i.add_argument("--narrow", type=positive_float,
+                   help="half-width of the usual proposal (default: the latents', 0.05)")
+    i.add_argument("--broad", type=positive_float,
+                   help="half-width of the periodic broad proposal (default: the latents', 0.5)")
+    i.add_argument("--broad-every", type=every_int, help="every how many sweeps the broad one is used (default 20)")
     i.add_argument("--no-speedups", action="store_true", help="plain path: full simulations (for checks)")
     i.add_argument("--init", choices=["prior", "recognition"], default="prior",
                    help="where chains start: drawn from the prior (the paper's default) or from what the "
                         "recognition model reads in the video (Galileo Fig. 4)")
     i.add_argument("--model", help="recognition model file for --init recognition (default: the built-in ramp "
                    "model)")
-    i.add_argument("--recognition-move", type=int, metavar="EVERY", default=None,
+    i.add_argument("--recognition-move", type=bounded(1, MAX_SWEEPS, integer=True), metavar="EVERY", default=None,
                    help="with --init recognition: also propose the whole latent vector from the recognition "
                         "model every EVERY sweeps (an exact independence MH move)")
     i.add_argument("--moves", choices=["default", "paper"], default="default",
                    help="default: widths adapted in a warm-up plus the scenario's exact joint moves (ramp: k1 from "
                         "the tracked acceleration, mass-ratio moves); paper: Galileo section 3.2 exactly")
-    i.add_argument("--warmup", type=int, default=None,
+    i.add_argument("--warmup", type=every_int, default=None,
                    help="warm-up sweeps in which widths adapt (default: half of --sweeps; dropped with the burn-in)")
-    i.add_argument("--until-rhat", type=float, default=None, metavar="R",
+    i.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
                    help="after --sweeps, run on until every latent's rank-normalised split R-hat <= R and its "
                         "bulk and tail ESS >= --min-ess (e.g. 1.01), or until --max-sweeps")
-    i.add_argument("--min-ess", type=float, default=400.0, help="ESS every latent needs (default 400)")
-    i.add_argument("--max-sweeps", type=int, default=None,
+    i.add_argument("--min-ess", type=nonneg_float, default=400.0, help="ESS every latent needs (default 400)")
+    i.add_argument("--max-sweeps", type=sweeps_int, default=None,
                    help="the sweep budget of --until-rhat (default: 20 x --sweeps)")
     i.add_argument("--priors", metavar="JSON", help="merged into the scene file's priors section, e.g. the ramp's "
                    "model-mismatch options '{\"observation\": \"student_t\", \"infer_sigma\": true}'")
-    i.add_argument("--out", required=True, help="result JSON (the sample record goes beside it as .samples.npz); "
+    i.add_argument("--out", required=True, type=_type(check_nonempty),
+                   help="result JSON (the sample record goes beside it as .samples.npz); "
                    "for a folder of videos, a folder (<name>.result.json each, records/, results.csv, results.parquet)")
     i.add_argument("--quiet", action="store_true", help="no progress bars")
     i.add_argument("--scheduler", metavar="ADDRESS", help="a folder of videos: on this running Dask scheduler")
@@ -615,27 +889,27 @@ def build_parser() -> argparse.ArgumentParser:
 
     q = sub.add_parser("predict", help="answer the paper's questions from an inference result")
     q.add_argument("--result", required=True, help="result JSON from `galileo infer`")
-    q.add_argument("--angle-deg", type=float, help="will the ramp object move on a ramp of this angle?")
+    q.add_argument("--angle-deg", type=finite_float, help="will the ramp object move on a ramp of this angle?")
     q.add_argument("--target", action="store_true", help="where does the target end up (the video's scene)?")
     q.add_argument("--scene", help="where does the target end up in this scene instead?")
-    q.add_argument("--out", help="also write the answers to this JSON file")
+    q.add_argument("--out", type=out_file, help="also write the answers to this JSON file")
     q.set_defaults(func=cmd_predict)
 
     e = sub.add_parser("experiment", help="the paper's experiments over a rendered dataset on Dask (ramp: Galileo "
                        "section 6; splash: mass correlation and which is heavier), with a report and figures")
     e.add_argument("dataset", help="folder written by `galileo dataset` (its index.json names the scenario)")
-    e.add_argument("--out", required=True, metavar="DIR",
+    e.add_argument("--out", required=True, metavar="DIR", type=out_dir,
                    help="results folder: records/ (one JSON per video, kept as it finishes: run the same command "
                         "again to resume), report.json, results.parquet, results.csv, report.md, figures/")
-    e.add_argument("--chains", type=int, default=None,
+    e.add_argument("--chains", type=chains_int, default=None,
                    help="chains per video (default: the scenario's protocol, ramp 16, splash 50)")
-    e.add_argument("--sweeps", type=int, default=None, help="sweeps per chain (default: 75)")
-    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--sweeps", type=sweeps_int, default=None, help="sweeps per chain (default: 75)")
+    e.add_argument("--seed", type=seed_int, default=0)
     e.add_argument("--moves", choices=["default", "paper"], default="default",
                    help="move set of every video's chains (see galileo infer; paper: Galileo section 3.2 exactly)")
     e.add_argument("--priors", metavar="JSON", help="merged into every video's scene priors (see galileo infer)")
     where = e.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=None,
+    where.add_argument("--workers", type=workers_int, default=None,
                        help="worker processes of the local Dask cluster (default: all cores)")
     where.add_argument("--scheduler", metavar="ADDRESS", help="use a running Dask scheduler (tcp://host:port)")
     where.add_argument("--slurm", metavar="JSON", help="run on SLURM (dask-jobqueue); settings file, see README")
@@ -648,7 +922,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     rp = sub.add_parser("report", help="rebuild report.md and its figures from a results table, running nothing")
     rp.add_argument("results", help="results.parquet or results.csv of `galileo experiment`, or its --out folder")
-    rp.add_argument("--out", required=True, metavar="DIR", help="folder for report.md and figures/")
+    rp.add_argument("--out", required=True, metavar="DIR", type=out_dir, help="folder for report.md and figures/")
     rp.add_argument("--recognition", metavar="EVAL_DIR",
                     help="add the recognition model's evaluation (the --out folder of `galileo recognize eval`)")
     rp.set_defaults(func=cmd_report)
@@ -680,22 +954,25 @@ def build_parser() -> argparse.ArgumentParser:
     cb = sub.add_parser("calibrate", help="simulation-based calibration (rank histograms, ECDF tests, interval "
                         "coverage) on simulated observations, or interval coverage on a rendered dataset")
     cb.add_argument("--scenario", default="ramp", help="scenario (default ramp)")
-    cb.add_argument("--n", type=int, default=None, help="simulations from the prior (SBC)")
+    cb.add_argument("--n", type=count_int, default=None, help="simulations from the prior (SBC)")
     cb.add_argument("--videos", metavar="DIR", default=None,
                     help="instead: interval coverage on this rendered dataset (folder from `galileo dataset`)")
-    cb.add_argument("--out", required=True, help="output folder (sbc.json, sbc.md, PNGs; or coverage.json, .md)")
-    cb.add_argument("--seed", type=int, default=0)
-    cb.add_argument("--chains", type=int, default=4, help="chains per simulation or video (default 4)")
-    cb.add_argument("--sweeps", type=int, default=200, help="sweeps per chain (default 200; the first half is "
+    cb.add_argument("--out", required=True, type=out_dir,
+                    help="output folder (sbc.json, sbc.md, PNGs; or coverage.json, .md)")
+    cb.add_argument("--seed", type=seed_int, default=0)
+    cb.add_argument("--chains", type=chains_int, default=4, help="chains per simulation or video (default 4)")
+    cb.add_argument("--sweeps", type=sweeps_int, default=200, help="sweeps per chain (default 200; the first half is "
                     "warm-up and burn-in)")
-    cb.add_argument("--until-rhat", type=float, default=None, metavar="R",
+    cb.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
                     help="run each inference on until R-hat <= R and ESS >= the ranked draws (or --max-sweeps)")
-    cb.add_argument("--max-sweeps", type=int, default=None, help="the sweep budget of --until-rhat")
+    cb.add_argument("--max-sweeps", type=sweeps_int, default=None, help="the sweep budget of --until-rhat")
     cb.add_argument("--moves", choices=["default", "paper"], default="default")
-    cb.add_argument("--draws", type=int, default=99, help="posterior draws the truth is ranked among (default 99)")
+    cb.add_argument("--draws", type=count_int, default=99,
+                    help="posterior draws the truth is ranked among (default 99)")
     cb.add_argument("--scenes", default="default", metavar="default|dataset|FILE",
                     help="the scenario's default scene, random scenes like its dataset's, or a scene file")
-    cb.add_argument("--workers", type=int, default=None, help="processes, one simulation each (default: all cores)")
+    cb.add_argument("--workers", type=workers_int, default=None,
+                    help="processes, one simulation each (default: all cores)")
     cb.add_argument("--quiet", action="store_true", help="no progress bar")
     cb.set_defaults(func=cmd_calibrate)
 
@@ -705,10 +982,10 @@ def build_parser() -> argparse.ArgumentParser:
     rl = rsub.add_parser("label", help="Galileo labels: track and infer every video of a dataset "
                          "(resumable; writes DATASET/labels.galileo.json)")
     rl.add_argument("--dataset", required=True, help="folder written by `galileo dataset`")
-    rl.add_argument("--chains", type=int, default=None, help="chains per video (default: the protocol's, 16)")
-    rl.add_argument("--sweeps", type=int, default=None, help="sweeps per chain (default 75)")
-    rl.add_argument("--seed", type=int, default=0)
-    rl.add_argument("--workers", type=int, default=None)
+    rl.add_argument("--chains", type=chains_int, default=None, help="chains per video (default: the protocol's, 16)")
+    rl.add_argument("--sweeps", type=sweeps_int, default=None, help="sweeps per chain (default 75)")
+    rl.add_argument("--seed", type=seed_int, default=0)
+    rl.add_argument("--workers", type=workers_int, default=None)
     rl.add_argument("--quiet", action="store_true")
     rl.set_defaults(func=cmd_recognize_label)
     rt = rsub.add_parser("train", help="train a recognition model on a dataset")
@@ -716,10 +993,10 @@ def build_parser() -> argparse.ArgumentParser:
     rt.add_argument("--labels", choices=["galileo", "oracle", "simulation"], default="galileo",
                     help="galileo: MCMC's estimates (run `recognize label` first); oracle: ground truth; "
                          "simulation: velocity series simulated from the prior (no video labels)")
-    rt.add_argument("--holdout-fold", type=int, default=0,
+    rt.add_argument("--holdout-fold", type=bounded(-1, 4, integer=True), default=0,
                     help="hold out the objects of this split (0-4) for testing; -1: train on every object")
-    rt.add_argument("--seed", type=int, default=0)
-    rt.add_argument("--out", required=True, help="model file to write (.npz)")
+    rt.add_argument("--seed", type=seed_int, default=0)
+    rt.add_argument("--out", required=True, type=out_file, help="model file to write (.npz)")
     rt.add_argument("--quiet", action="store_true")
     rt.set_defaults(func=cmd_recognize_train)
     re_ = rsub.add_parser("eval", help="the Fig. 3 table: MSE and correlation against ground truth on held-out "
@@ -727,10 +1004,10 @@ def build_parser() -> argparse.ArgumentParser:
     re_.add_argument("--dataset", required=True)
     re_.add_argument("--model", help="score this model on the objects it held out (default: the whole protocol, "
                      "5 splits, Galileo / oracle / simulation / uniform)")
-    re_.add_argument("--splits", type=int, default=5)
-    re_.add_argument("--seed", type=int, default=0)
+    re_.add_argument("--splits", type=bounded(2, 100, integer=True), default=5)
+    re_.add_argument("--seed", type=seed_int, default=0)
     re_.add_argument("--no-simulation", action="store_true", help="leave the simulation-trained model out")
-    re_.add_argument("--out", required=True, help="folder for table.json, table.md and the scatter PNGs")
+    re_.add_argument("--out", required=True, type=out_dir, help="folder for table.json, table.md and the scatter PNGs")
     re_.add_argument("--quiet", action="store_true")
     re_.set_defaults(func=cmd_recognize_eval)
     rp = rsub.add_parser("predict", help="mass and friction of a video's objects from its first frame")
@@ -740,7 +1017,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--tracks", help="tracks JSON (default: track the video; where nothing moves, read the "
                     "objects where the scene file puts them)")
     rp.add_argument("--no-track", action="store_true", help="do not track: read where the scene file puts them")
-    rp.add_argument("--out", help="also write the readings to this JSON file")
+    rp.add_argument("--out", type=out_file, help="also write the readings to this JSON file")
     rp.set_defaults(func=cmd_recognize_predict)
 
     c = sub.add_parser("scenarios", help="list the scenarios with their latents, units and default priors")
@@ -751,8 +1028,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
-    return run_reporting_errors("galileo", lambda: args.func(args))
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:     # --help (0) or a refused flag (2, its one line printed)
+        return int(e.code or 0) if not isinstance(e.code, str) else 2
+
+    def run() -> int:
+        check_not_an_input(args)
+        return args.func(args)
+
+    return run_reporting_errors("galileo", run)
 
 
 if __name__ == "__main__":

@@ -14,15 +14,27 @@ class StillVideo(GalileoError):
 
 
 def run_reporting_errors(prog: str, fn) -> int:
-    """`fn()`'s exit code; a GalileoError becomes one line on stderr and exit code 2, Ctrl-C
-    exit code 130 (for the CLI and the bench scripts)."""
+    """`fn()`'s exit code; a GalileoError (or a system call's OSError: a file refused) becomes
+    one line `prog: error: ...` on stderr and exit code 2, Ctrl-C exit code 130 (for the CLI,
+    the app and the bench scripts)."""
     import sys
 
     try:
         return int(fn() or 0)
     except GalileoError as e:
-        msg = " ".join(str(e).split("\n"))
+        msg = " ".join(str(e).split())
         print(f"{prog}: error: {msg}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        # a file the system refused (a folder where a file was meant, no permission, a full
+        # disk) that no check caught first: still one line naming the file, never a traceback
+        if e.errno is None:
+            raise
+        if getattr(e, "filename2", None) is not None:     # a rename onto it (an atomic write's last step)
+            where = f"cannot write {e.filename2}: "
+        else:
+            where = f"{e.filename}: " if e.filename is not None else ""
+        print(f"{prog}: error: {where}{e.strerror or e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -57,8 +58,21 @@ def read_json(path: str | os.PathLike, what: str = "file") -> Any:
     if not path.exists():
         raise GalileoError(f"{what} not found: {path}")
     try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise GalileoError(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
+        text = path.read_text()
     except (OSError, UnicodeDecodeError) as e:
-        raise GalileoError(f"cannot read {what} {path}: {e}") from None
+        raise GalileoError(f"cannot read {what} {path}: {' '.join(str(e).split())}") from None
+    return parse_json(text, f"{what} {path}")
+
+
+def parse_json(text: str, what: str = "the text") -> Any:
+    """`text` parsed as JSON; GalileoError (one line naming `what`) when it is not JSON, is
+    nested too deeply for the parser (a RecursionError) or holds an integer too long to read."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        raise GalileoError(f"{what} is not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
+    except RecursionError:
+        raise GalileoError(f"{what} is nested too deeply to read (arrays or objects more than about "
+                           f"{sys.getrecursionlimit()} levels deep)") from None
+    except ValueError as e:   # e.g. an integer of more than 4300 digits
+        raise GalileoError(f"{what} cannot be read: {' '.join(str(e).split())[:200]}") from None

@@ -76,11 +76,12 @@ def check_bounds(latent: Latent, lo, hi) -> tuple[float, float]:
     if not lo < hi:
         raise ValueError(f"{latent.name}: the low bound ({lo:g}) must be below the high bound ({hi:g})")
     low, high = latent.limits
+    unit = "" if latent.unit == "1" else f" {latent.unit}"      # (a dimensionless latent's unit is "1")
     if lo < low or (latent.limits_open_low and lo == low):
         rel = ">" if latent.limits_open_low else ">="
-        raise ValueError(f"{latent.name}: bounds must be {rel} {low:g} {latent.unit}, got a low bound of {lo:g}")
+        raise ValueError(f"{latent.name}: bounds must be {rel} {low:g}{unit}, got a low bound of {lo:g}")
     if hi > high:
-        raise ValueError(f"{latent.name}: bounds must be <= {high:g} {latent.unit}, got a high bound of {hi:g}")
+        raise ValueError(f"{latent.name}: bounds must be <= {high:g}{unit}, got a high bound of {hi:g}")
     return lo, hi
 
 

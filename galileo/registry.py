@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import SceneError
+from .fields import show
 from .model import Scenario
 
 DEFAULT = "ramp"
@@ -43,7 +44,7 @@ def name_in(data: Any) -> str:
     if isinstance(data, dict) and "scenario" in data:
         name = data["scenario"]
         if not isinstance(name, str):
-            raise SceneError(f"scenario: expected a name, got {name!r}")
+            raise SceneError(f"scenario: expected a name, got {show(name)}")
         return name
     return DEFAULT
 

@@ -297,8 +297,156 @@ def _plain(w):
 
 def load_samples(npz_path: str | Path) -> dict[str, np.ndarray]:
     """The sample record written by `InferenceResult.save`."""
+    import zipfile
+    import zlib
+
     try:
-        with np.load(npz_path, allow_pickle=False) as z:
+        z = np.load(npz_path, allow_pickle=False)
+        if not hasattr(z, "files"):   # a single .npy array, not a record
+            raise ValueError("not an .npz record of named arrays")
+        with z:
             return {k: z[k] for k in z.files}
-    except (OSError, ValueError) as e:
-        raise GalileoError(f"cannot read sample record {npz_path}: {e}") from None
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as e:
+        raise ResultError(f"cannot read sample record {npz_path}: {e}") from None
+
+
+# -- reading a result file back (galileo predict, the library) -------------------------------------
+# What `InferenceResult.save` writes and `load_result` checks, each problem one line naming
+# the field:
+#   scenario      a known scenario's name (default "ramp", the format before scenarios had names)
+#   scene         that scenario's scene (its own parser's rules)
+#   latents       optional: the latent names, each once (default: the map's keys); they must
+#                 be the latents the scene infers
+#   map           a finite number for every latent, none for anything else, each within the
+#                 latent's limits (a mass above 0, ...)
+#   samples_file  null, or a plain file name beside the result file (no folder part: the
+#                 record goes where the result goes) that exists; its samples (C, S, D) finite,
+#                 D the latents, its names the latents
+#   converged     optional true/false; why_not optional list of strings;
+#   diagnostics.warmup_sweeps  optional integer >= 0
+
+class ResultError(GalileoError):
+    """A result file that does not hold together (one line, naming the file and field)."""
+
+
+@dataclass
+class ResultFile:
+    """A checked result file: its scenario, scene, latents, MAP and where its samples are."""
+    path: Path
+    scenario: str
+    scene: object
+    names: tuple[str, ...]
+    map: dict[str, float]
+    converged: bool | None
+    why_not: list[str]
+    warmup: int
+    samples_path: Path | None
+    data: dict
+
+    def samples(self) -> np.ndarray | None:
+        """The record's samples (chains, sweeps, latents), checked; None without a record."""
+        if self.samples_path is None:
+            return None
+        rec = load_samples(self.samples_path)
+        where = f"sample record {self.samples_path}"
+        s = rec.get("samples")
+        if s is None:
+            raise ResultError(f"{where}: no samples array")
+        if s.ndim != 3 or s.shape[0] < 1 or s.shape[1] < 1 or s.shape[2] != len(self.names):
+            raise ResultError(f"{where}: samples of shape {tuple(s.shape)}, expected (chains, sweeps, "
+                              f"{len(self.names)}) for the latents {', '.join(self.names)}")
+        if not np.issubdtype(s.dtype, np.number) or not np.all(np.isfinite(s)):
+            raise ResultError(f"{where}: samples are not all finite numbers")
+        names = rec.get("names")
+        if names is not None and tuple(str(n) for n in np.ravel(names)) != self.names:
+            raise ResultError(f"{where}: names {[str(n) for n in np.ravel(names)]} are not the result's latents "
+                              f"{list(self.names)} (the record of another result?)")
+        return s.astype(float)
+
+
+def read_result_json(path: str | Path) -> dict:
+    """A result file's JSON, with its top level checked: an object naming a known scenario."""
+    from .jsonio import read_json
+
+    d = read_json(path, "result file")
+    if not isinstance(d, dict):
+        raise ResultError(f"{path} is not a galileo result file: expected a JSON object at the top level")
+    name = d.get("scenario", registry.DEFAULT)
+    if not isinstance(name, str):
+        raise ResultError(f"result file {path}: scenario: expected a name, got {name!r}")
+    if name not in registry.names():
+        raise ResultError(f"result file {path}: scenario: unknown scenario {name!r}; known: "
+                          f"{', '.join(registry.names())}")
+    return d
+
+
+def load_result(path: str | Path) -> ResultFile:
+    """A result file written by `InferenceResult.save`, every field `predict` uses checked
+    (see the comment above); ResultError naming the field otherwise."""
+    path = Path(path)
+    d = read_result_json(path)
+    for key in ("scene", "map"):
+        if key not in d:
+            raise ResultError(f"{path} is not a galileo result file: missing {key!r}")
+    where = f"result file {path}"
+    name = d.get("scenario", registry.DEFAULT)
+    scenario = registry.get(name)
+    scene_d = d["scene"]
+    if not isinstance(scene_d, dict):
+        raise ResultError(f"{where}: scene: expected an object")
+    try:
+        scene_name = registry.name_in(scene_d)
+    except GalileoError as e:
+        raise ResultError(f"{where}: scene.{e}") from None
+    if scene_name != name:
+        raise ResultError(f"{where}: scene: a {scene_name!r} scene in a {name!r} result")
+    try:
+        scene = scenario.scene_from_json(scene_d)
+    except GalileoError as e:
+        raise ResultError(f"{where}: scene: {e}") from None
+    m = d["map"]
+    if not isinstance(m, dict) or not m:
+        raise ResultError(f"{where}: map: expected an object of latent values, got {m!r}")
+    specs = {lat.name: lat for lat in scenario.latents(scene)}
+    latents = d.get("latents", list(specs))   # (results before the field: the scene's)
+    if (not isinstance(latents, list) or not latents or not all(isinstance(n, str) and n for n in latents)
+            or len(set(latents)) != len(latents)):
+        raise ResultError(f"{where}: latents: expected a list of latent names, each once, got {latents!r}")
+    if set(latents) != set(specs):
+        raise ResultError(f"{where}: latents: {latents} are not the latents its scene infers ({', '.join(specs)})")
+    for n in latents:
+        if n not in m:
+            raise ResultError(f"{where}: map: lacks latent {n!r} (the result's latents: {', '.join(latents)})")
+    for k, v in m.items():
+        if k not in specs:
+            raise ResultError(f"{where}: map.{k}: not a latent of this result ({', '.join(latents)})")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ResultError(f"{where}: map.{k}: expected a finite number, got {v!r}")
+        lo, hi = specs[k].limits
+        if v < lo or v > hi or (specs[k].limits_open_low and v == lo):
+            bound = f"({lo:g}, {hi:g}]" if specs[k].limits_open_low else f"[{lo:g}, {hi:g}]"
+            raise ResultError(f"{where}: map.{k}: {v:g} is outside {bound}")
+    converged = d.get("converged")
+    if converged is not None and not isinstance(converged, bool):
+        raise ResultError(f"{where}: converged: expected true or false, got {converged!r}")
+    why_not = d.get("why_not") or []
+    if not isinstance(why_not, list) or not all(isinstance(w, str) for w in why_not):
+        raise ResultError(f"{where}: why_not: expected a list of strings, got {why_not!r}")
+    diag = d.get("diagnostics") or {}
+    if not isinstance(diag, dict):
+        raise ResultError(f"{where}: diagnostics: expected an object")
+    warmup = diag.get("warmup_sweeps", 0)
+    if isinstance(warmup, bool) or not isinstance(warmup, int) or warmup < 0:
+        raise ResultError(f"{where}: diagnostics.warmup_sweeps: expected an integer >= 0, got {warmup!r}")
+    samples_path = None
+    sf = d.get("samples_file")
+    if sf is not None:
+        if not isinstance(sf, str) or not sf or sf in (".", "..") or Path(sf).name != sf or "\\" in sf:
+            raise ResultError(f"{where}: samples_file: expected the name of a file beside the result file (no "
+                              f"folder), got {sf!r}")
+        samples_path = path.with_name(sf)
+        if not samples_path.is_file():
+            raise ResultError(f"{where}: samples_file: {sf} is not beside it in {path.parent} (copy the .samples.npz "
+                              "there, or set samples_file to null to predict from the MAP alone)")
+    return ResultFile(path, name, scene, tuple(latents), {k: float(v) for k, v in m.items()}, converged,
+                      list(why_not), int(warmup), samples_path, d)

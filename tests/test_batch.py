@@ -241,7 +241,7 @@ def test_infer_folder_refusals_are_one_line(demo_dir, tmp_path, capsys, setup, f
 
 def test_out_must_name_a_folder(dataset, tmp_path, capsys):
     (tmp_path / "file").write_text("x")
-    for out, needle in ((tmp_path / "report.json", "names the results folder"), (tmp_path / "file", "not a file")):
+    for out, needle in ((tmp_path / "report.json", "names the results folder"), (tmp_path / "file", "is a file; expected a folder")):
         assert main(["experiment", str(dataset), "--out", str(out), "--quiet", *ARGS]) == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith("galileo: error:") and needle in err and "\n" not in err

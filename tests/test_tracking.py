@@ -181,10 +181,14 @@ def test_odd_sized_video(demo_dir, tmp_path, capsys):
 def test_nothing_moving_is_evidence_not_an_error(demo_dir, tmp_path):
     """The demo's first frame held for 20 frames: the objects at rest where the scene file
     puts them, with a note (tests/test_still_video.py covers it through inference)."""
+    import dataclasses
+
     frames, _ = read_video(demo_dir / "video.mp4")
     still = tmp_path / "still.mp4"
     write_video(still, [frames[0]] * 20, 30.0)
-    tracks = track(still, Scene.load(demo_dir / "scene.json"), progress=False)
+    scene = Scene.load(demo_dir / "scene.json")   # its camera describes a 20-frame video
+    scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, n_frames=20))
+    tracks = track(still, scene, progress=False)
     assert len(tracks.notes) == 1 and tracks.notes[0].startswith("nothing moves")
     assert all(o.visible.all() and (o.velocity_mps == 0).all() for o in tracks.objects)
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from ...camera import Camera
 from ...errors import GalileoError
+from .scene import RAMP_SIZE_M
 
 ORDER = ("upper near", "upper far", "foot far", "foot near")
 MIN_SIDE_PX = 4.0          # two clicks closer than this are one point
@@ -124,7 +125,7 @@ def camera_from_clicks(uv, *, width_px: int, height_px: int, fps: float, n_frame
 
 
 DEFAULT_TARGET_DISTANCE_M = 0.1   # from the ramp's foot to the target's near face
-MAX_RAMP_M = 10.0                 # a ramp's length and width at most (the scenario is a tabletop ramp)
+MAX_RAMP_M = RAMP_SIZE_M.hi      # a ramp's length and width at most (the scenario is a tabletop ramp)
 
 
 def scene_from_clicks(uv, *, width_px: int, height_px: int, fps: float, n_frames: int, length_m: float,

@@ -109,21 +109,50 @@ SWITCH_MARGIN_M = 0.01          # phase A ends this much before one frame's reac
 
 def scene_for_inference(scene: Scene, tracks: Tracks) -> Scene:
     """The scene with the shapes and offset that tracking measured (fixed during MCMC);
-    checks that the tracks fit the scene (frame rate, objects)."""
-    if scene.camera is not None and tracks.fps != scene.camera.fps:
-        raise GalileoError(f"tracks at {tracks.fps} fps but the scene camera at {scene.camera.fps} fps")
+    checks that the tracks hold together (`Tracks.check`), saw something
+    (`Tracks.require_visible`) and fit the scene: the camera's frame rate, a track per
+    scene object (by role; tracks of other roles are not used), the ramp's shape types, an
+    offset within the scene's prior, shapes that the scene can hold (the ramp object on the
+    ramp)."""
+    tracks.check()
+    tracks.require_visible()
+    if scene.camera is not None and abs(tracks.fps - scene.camera.fps) > 1e-9 * scene.camera.fps:
+        raise GalileoError(f"tracks at {tracks.fps:g} fps but the scene camera at {scene.camera.fps:g} fps")
     objs = list(scene.objects)
     for i, obj in enumerate(objs):
         tr = next((t for t in tracks.objects if t.role == obj.role), None)
         if tr is None:
             raise GalileoError(f"the tracks have no {obj.role} object for scene object {obj.name!r}")
+        problem = tr.shape.problem()   # (the tracks may name a type no scenario has registered)
+        if problem:
+            raise GalileoError(f"tracks: object {tr.name!r}: shape: {problem}")
         change = {"shape": tr.shape}
         if obj.role == "ramp" and tr.offset_units is not None:
+            lo, hi = scene.priors.offset_units
+            if not lo <= tr.offset_units <= hi and tr.offset_units != obj.offset_units:   # (held still: the scene's)
+                raise GalileoError(f"tracks: object {tr.name!r}: offset_units {tr.offset_units} is outside the scene's "
+                                   f"priors.offset_units [{lo}, {hi}]")
             change["offset_units"] = int(tr.offset_units)
         objs[i] = dataclasses.replace(obj, **change)
     new = dataclasses.replace(scene, objects=tuple(objs))
-    new.validate()
+    try:
+        new.validate()
+    except GalileoError as e:   # the scene itself was valid: what the tracks put in is not
+        raise GalileoError(f"the tracked shapes and offset do not fit the scene: {e}") from None
     return new
+
+
+def check_sigma(sigma) -> float:
+    """The fixed sigma (m/s) as a float: finite and within the scenario's noise limits
+    (GalileoError otherwise: a NaN, infinite, zero or underflowing sigma makes every
+    log-likelihood NaN or infinite)."""
+    from ...latents import check_noise
+    from . import RampScenario
+
+    try:
+        return check_noise(RampScenario.noise, sigma)
+    except ValueError as e:
+        raise GalileoError(f"likelihood: {e}") from None
 
 
 @dataclass
@@ -160,11 +189,11 @@ class VelocityLikelihood:
 
     def __init__(self, scene: Scene, tracks: Tracks, sigma_mps: float = SIGMA_MPS, speedups: bool = True,
                  cache_size: int = 4):
+        self.sigma_mps = check_sigma(sigma_mps)   # the fixed sigma (unused with the sigma latent)
         self.scene = scene_for_inference(scene, tracks)
         self.names = self.scene.latent_names
         self.fps = tracks.fps
         self.n_frames = tracks.n_frames
-        self.sigma_mps = float(sigma_mps)   # the fixed sigma (unused with the sigma latent)
         self.speedups = speedups
         priors = self.scene.priors
         self.observation = priors.observation

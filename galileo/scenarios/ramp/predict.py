@@ -14,10 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import GalileoError
-from ...jsonio import read_json
-from ...results import burn_in, load_samples
+from ...results import burn_in, load_result
 from .physics import Simulator
-from .scene import Scene, scene_from_json
+from .scene import Scene
 
 MOVE_THRESHOLD_M = 0.01   # "it moves": its centre travels more than this in MOVE_WINDOW_S
 MOVE_WINDOW_S = 2.0
@@ -39,26 +38,21 @@ class Prediction:
     """A loaded result: its scene, MAP and posterior samples."""
 
     def __init__(self, result_path: str | Path, max_samples: int = 64):
-        result_path = Path(result_path)
-        d = read_json(result_path, "result file")
-        try:
-            self.scene: Scene = scene_from_json(d["scene"])
-            self.map: dict[str, float] = {k: float(v) for k, v in d["map"].items()}
-            samples_file = result_path.with_name(d["samples_file"]) if d.get("samples_file") else None
-        except (KeyError, TypeError) as e:
-            raise GalileoError(f"{result_path} is not a galileo result file: missing {e}") from None
-        self.names = tuple(d.get("latents", list(self.map)))
+        res = load_result(result_path)   # every field checked (galileo.results.load_result)
+        if res.scenario != "ramp":
+            raise GalileoError(f"result file {result_path}: a {res.scenario!r} result, not the ramp's")
+        self.scene: Scene = res.scene
+        self.map: dict[str, float] = res.map
+        self.names = res.names
         self.samples = np.zeros((0, len(self.names)))
-        diag = d.get("diagnostics") if isinstance(d.get("diagnostics"), dict) else {}
-        self.converged = d.get("converged") if isinstance(d.get("converged"), bool) else None
-        self.why_not = list(d.get("why_not") or [])
-        warmup = diag.get("warmup_sweeps", 0) if isinstance(diag.get("warmup_sweeps", 0), int) else 0
-        if samples_file is not None and samples_file.exists():
-            rec = load_samples(samples_file)
-            s = rec["samples"]
-            kept = s[:, burn_in(s.shape[1], warmup):].reshape(-1, s.shape[2])
-            idx = np.linspace(0, len(kept) - 1, min(max_samples, len(kept))).astype(int)
-            self.samples = kept[idx]
+        self.converged = res.converged
+        self.why_not = res.why_not
+        s = res.samples()
+        if s is not None:
+            kept = s[:, burn_in(s.shape[1], res.warmup):].reshape(-1, s.shape[2])
+            if len(kept):
+                idx = np.linspace(0, len(kept) - 1, min(max_samples, len(kept))).astype(int)
+                self.samples = kept[idx]
 
     def _values(self, row) -> dict[str, float]:
         return {n: float(v) for n, v in zip(self.names, row)}

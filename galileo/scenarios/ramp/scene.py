@@ -17,9 +17,9 @@ from typing import Any, ClassVar, Iterable
 
 import numpy as np
 
-from ...camera import Camera, camera_from_json, look_at_camera
+from ...camera import Camera, camera_from_json, check_camera, check_run, look_at_camera
 from ...errors import SceneError
-from ...fields import field_value, number, pair
+from ...fields import Bound, field_value, is_finite_number, is_number, number, pair, show, unknown_fields, where_of
 from ...latents import Latent, check_bounds
 from ...model import SceneFile
 from ...shapes import SHAPE_TYPES, Shape, shape_class
@@ -29,11 +29,47 @@ ROLES = ("ramp", "target")
 TARGET_KINDS = ("cardboard", "foam")
 # latent name -> (object index, attribute)
 LATENTS = {"m1_kg": (0, "mass_kg"), "k1": (0, "friction"), "m2_kg": (1, "mass_kg"), "k2": (1, "friction")}
-# where any prior's bounds must lie: a tabletop ramp's objects (a 100 kg one would crush it;
-# Bullet's contacts degrade at mass ratios of 1e6 and more) and friction coefficients (rubber
-# on concrete is about 1; 10 holds anything on any ramp under 60 degrees)
-_MASS = dict(unit="kg", limits=(0.0, 100.0), limits_open_low=True)
-_FRICTION = dict(unit="1", limits=(0.0, 10.0))
+
+# -- what a ramp scene may hold: every bound in one place, each with its reason -------------------
+# (checked where a file is parsed, where a scene is built in code, by `with_values`, so by
+# `galileo simulate --set` and its quick form too; an error names the field and the bound)
+MASS_KG = Bound(0.0, 100.0, lo_open=True)   # a tabletop ramp's objects: a mass above 0 (Bullet needs one), at
+# most 100 kg (a heavier one would crush the ramp; 1e308 kg overflows Bullet's impulses into NaN)
+FRICTION = Bound(0.0, 10.0)                 # Coulomb coefficients: rubber on concrete is about 1; 10 holds
+# anything on any ramp under 60 degrees
+RESTITUTION = Bound(0.0, 1.0)               # 0 (no bounce) to 1 (elastic): above 1 a bounce would make energy
+ANGLE_DEG = Bound(0.0, 60.0, hi_open=True)  # steeper than 60 degrees an object falls off rather than slides
+RAMP_SIZE_M = Bound(0.0, 10.0, lo_open=True)        # the ramp board's length and width: a tabletop ramp, at
+# most 10 m (as `galileo scene` takes them, clicks.MAX_RAMP_M)
+RAMP_THICKNESS_M = Bound(0.0, 1.0, lo_open=True)    # a board, not a wall: at most 1 m thick
+OBJECT_SIZE_M = Bound(0.001, 2.0)           # each of an object's sizes: at least 1 mm (Bullet's collision margin
+# around mesh shapes, shapes.BULLET_MESH_MARGIN_M: smaller, the margin is the object), at most 2 m (an object
+# that slides down a tabletop ramp)
+PRIOR_SIZE_M = Bound(0.005, 2.0)            # the prior's size range: as OBJECT_SIZE_M, from 5 mm so that a
+# torus drawn from it (tube at least 0.4 x its diameter) keeps every size above 1 mm
+DISTANCE_M = Bound(0.0, 2.0)                # the target's near face from the ramp's foot: on the ground, at most
+# 2 m away (the dataset's are 0.08-0.14 m; the ground, physics.GROUND_SIZE_M, reaches 4 m from the foot, and a
+# 2 m target 2 m away still stands on it)
+UNIT_M = Bound(0.001, 1.0)                  # the offset unit (the paper's is 2 cm): 1 mm (finer than tracking
+# resolves) to 1 m
+START_UNITS = Bound(0.0, 1e6)               # the nominal start in units, >= 0; where it lands (on the ramp) is
+# checked against the ramp's length
+OFFSET_UNITS = Bound(-10_000, 10_000, integer=True)   # whole units (never rounded); |offset| <= 10000 keeps the
+# arithmetic exact, and the start must still lie on the ramp (checked against its length)
+SIM_HZ = Bound(60, 10_000, integer=True)    # Bullet steps per second: at least 60 (slower, a 1 m/s object moves
+# a third of a 5 cm block a step: contacts are resolved too coarsely), at most 10 kHz (40x the cost of the 240
+# every dataset uses)
+GRAVITY_MPS2 = Bound(0.0, 100.0)            # downwards, 0 (nothing moves) to 100 m/s^2 (10 g; beyond any lab)
+MAX_STEPS = 2_000_000                       # physics steps of one simulated video (camera.n_frames x sim_hz /
+# camera.fps) at most: about a minute of Bullet on one core; inference repeats it thousands of times
+STUDENT_T_DOF = Bound(0.0, 1000.0, lo_open=True)   # degrees of freedom of the Student-t observation model:
+# above 0; above 1000 it is a Gaussian to 1e-3 (and the likelihood's lgamma(dof / 2) overflows at 1e308)
+SIGMA_LIMITS_MPS = (1e-4, 10.0)             # the likelihood's sigma (RampScenario.noise.limits): 0.1 mm/s (a
+# pixel's jitter is more) to 10 m/s (no ramp is that fast); the sigma latent is its log10
+
+# where any prior's bounds must lie: the masses and frictions a scene may hold (above)
+_MASS = dict(unit="kg", limits=(MASS_KG.lo, MASS_KG.hi), limits_open_low=MASS_KG.lo_open)
+_FRICTION = dict(unit="1", limits=(FRICTION.lo, FRICTION.hi))
 # the latents: the paper's priors (mass ~ U(0.001, 1) kg, friction ~ U(0, 1)) and proposals
 LATENT_SPECS = {
     "m1_kg": Latent("m1_kg", bounds=(0.001, 1.0), doc="ramp object's mass", **_MASS),
@@ -48,13 +84,13 @@ LATENT_SPECS = {
 #   `Scene.collision_restitution` for how Bullet's per-body restitutions are set);
 # * log10_sigma_mps: the likelihood's sigma, log-uniform (uniform in log10), always last.
 OPTIONAL_SPECS = {
-    "e_collision": Latent("e_collision", "1", bounds=(0.0, 1.0), limits=(0.0, 1.0),
+    "e_collision": Latent("e_collision", "1", bounds=(0.0, 1.0), limits=(RESTITUTION.lo, RESTITUTION.hi),
                           doc="restitution of the ramp object's collision with the target"),
     # narrow 0.1: the posterior's SD in log10 sigma is about 0.43 / sqrt(2 n) for n tracked
     # velocities (0.03 for 120), and a sigma proposal is cheap (it reuses the physics)
     "log10_sigma_mps": Latent("log10_sigma_mps", "log10 m/s", bounds=(math.log10(0.005), math.log10(0.5)),
                               doc="log10 of the likelihood's sigma (SD of each tracked velocity component)",
-                              narrow=0.1),
+                              limits=(math.log10(SIGMA_LIMITS_MPS[0]), math.log10(SIGMA_LIMITS_MPS[1])), narrow=0.1),
 }
 ALL_SPECS = {**LATENT_SPECS, **OPTIONAL_SPECS}
 # the observation models of the likelihood (`Priors.observation`)
@@ -98,9 +134,7 @@ class Priors:
     def __post_init__(self):
         if self.observation not in OBSERVATIONS:
             raise SceneError(f"priors.observation: expected one of {', '.join(OBSERVATIONS)}, got {self.observation!r}")
-        dof = self.student_t_dof
-        if isinstance(dof, bool) or not isinstance(dof, (int, float)) or not math.isfinite(dof) or dof <= 0:
-            raise SceneError(f"priors.student_t_dof: expected a finite number > 0, got {dof!r}")
+        dof = STUDENT_T_DOF.check(self.student_t_dof, "priors.student_t_dof")
         for flag in ("infer_sigma", "infer_restitution"):
             if not isinstance(getattr(self, flag), bool):
                 raise SceneError(f"priors.{flag}: expected true or false, got {getattr(self, flag)!r}")
@@ -109,6 +143,35 @@ class Priors:
                    if on and n not in self.bounds]
         if enabled:   # an enabled latent's default bounds, explicit
             object.__setattr__(self, "bounds", {**self.bounds, **{n: OPTIONAL_SPECS[n].bounds for n in enabled}})
+
+    def check(self, path: str = "priors") -> None:
+        """SceneError naming the field unless every bound is a latent's (low below high, both
+        numbers, inside the latent's limits: `check_bounds`), the offset range whole numbers in
+        OFFSET_UNITS, the size range in PRIOR_SIZE_M and the shape types known, each once."""
+        if not isinstance(self.bounds, dict):
+            raise SceneError(f"{path}: expected bounds by latent name, got {show(self.bounds)}")
+        for name, b in self.bounds.items():
+            if name not in ALL_SPECS:
+                raise SceneError(f"{where_of(path, name)}: unknown latent; expected one of {', '.join(ALL_SPECS)}")
+            if not isinstance(b, (tuple, list)) or len(b) != 2 or not all(is_finite_number(x) for x in b):
+                raise SceneError(f"{path}.{name}: expected [low, high], two numbers, got {show(b)}")
+            try:
+                check_bounds(ALL_SPECS[name], *b)
+            except ValueError as e:
+                raise SceneError(f"{path}.{e}") from None
+        for key, bound in (("offset_units", OFFSET_UNITS), ("size_m", PRIOR_SIZE_M)):
+            v = getattr(self, key)
+            if not isinstance(v, (tuple, list)) or len(v) != 2:
+                raise SceneError(f"{path}.{key}: expected [low, high], got {show(v)}")
+            lo, hi = (bound.check(x, f"{path}.{key}") for x in v)
+            if lo > hi:
+                raise SceneError(f"{path}.{key}: expected [low, high] with low <= high, got {show(list(v))}")
+        types = self.shape_types
+        if not isinstance(types, (tuple, list)) or not types or any(t not in SHAPE_TYPES for t in types):
+            raise SceneError(f"{path}.shape_types: expected a non-empty list from {', '.join(SHAPE_TYPES)}, "
+                             f"got {show(types)}")
+        if len(set(types)) != len(types):
+            raise SceneError(f"{path}.shape_types: each type at most once, got {show(list(types))}")
 
     def bound(self, name: str) -> tuple[float, float]:
         """The prior bounds of latent `name` (an optional latent's default if not set)."""
@@ -267,36 +330,48 @@ class Scene(SceneFile):
     def with_values(self, values: dict[str, float]) -> "Scene":
         """A copy with latents (m1_kg, k1, m2_kg, k2, e_collision) and knobs (offset_units,
         angle_deg, e1, e2) set. log10_sigma_mps (the likelihood's noise) is accepted and
-        changes nothing: it is no part of the physical scene."""
+        changes nothing: it is no part of the physical scene. Each value is checked against its
+        bound (SceneError naming it: `m1_kg: 1e+308 is outside (0, 100]`; an offset of 1.5 is
+        refused, not rounded), then the new scene is validated as a whole."""
         objs = list(self.objects)
         ramp = self.ramp
         collision = self.collision_restitution
+
+        def index(name: str, i: int) -> int:
+            if i >= len(objs):
+                raise SceneError(f"{name}: this scene has no target object")
+            return i
+
         for name, value in values.items():
             if name in LATENTS:
                 i, attr = LATENTS[name]
-                if i >= len(objs):
-                    raise SceneError(f"{name}: this scene has no target object")
-                objs[i] = replace(objs[i], **{attr: float(value)})
+                v = (MASS_KG if attr == "mass_kg" else FRICTION).check(value, name)
+                i = index(name, i)
+                objs[i] = replace(objs[i], **{attr: v})
             elif name == "offset_units":
-                objs[0] = replace(objs[0], offset_units=int(round(value)))
+                objs[0] = replace(objs[0], offset_units=OFFSET_UNITS.check(value, name))
             elif name in ("e1", "e2"):
-                i = int(name[1]) - 1
-                if i >= len(objs):
-                    raise SceneError(f"{name}: this scene has no target object")
-                objs[i] = replace(objs[i], restitution=float(value))
+                i = index(name, int(name[1]) - 1)
+                objs[i] = replace(objs[i], restitution=RESTITUTION.check(value, name))
             elif name == "angle_deg":
-                ramp = replace(ramp, angle_deg=float(value))
+                ramp = replace(ramp, angle_deg=ANGLE_DEG.check(value, name))
             elif name == "e_collision":
-                if len(objs) < 2:
-                    raise SceneError(f"{name}: this scene has no target object")
-                collision = float(value)
+                index(name, 1)
+                collision = RESTITUTION.check(value, name)
             elif name == "log10_sigma_mps":
-                pass
+                lo, hi = OPTIONAL_SPECS[name].limits
+                Bound(lo, hi).check(value, name)
             else:
-                raise SceneError(f"unknown name {name!r}; expected one of {', '.join([*LATENTS, *SCENE_KNOBS])}")
+                raise SceneError(f"unknown name {show(name)}; expected one of {', '.join([*LATENTS, *SCENE_KNOBS])}")
         new = replace(self, objects=tuple(objs), ramp=ramp, collision_restitution=collision)
         new.validate()
         return new
+
+    def check_simulation(self, n_frames: int, fps: float, names: tuple[str, str] = ("fps", "n_frames")) -> None:
+        """SceneError unless `n_frames` frames at `fps` can be simulated in this scene: fps in
+        [1, 1000], n_frames in [1, 100000], sim_hz a multiple of fps, at most MAX_STEPS physics
+        steps (`names`: what to call fps and n_frames in a message, e.g. a command's flags)."""
+        check_run(self.sim_hz, fps, n_frames, MAX_STEPS, names=names)
 
     # -- geometry ---------------------------------------------------------------
     def start_distance_m(self, obj: SceneObject | None = None) -> float:
@@ -319,23 +394,52 @@ class Scene(SceneFile):
 
     # -- validation & IO --------------------------------------------------------------
     def validate(self) -> None:
+        """SceneError naming the field (as the scene file writes it) unless every number lies
+        in its bound (the constants at the top of this module) and the cross-field rules hold:
+        the ramp object starts on the ramp, object names differ, the priors are proper
+        (`Priors.check`), the camera is a proper pinhole camera (`camera.check_camera`) whose
+        video sim_hz steps evenly in at most MAX_STEPS steps, a collision restitution has a
+        target. Run by the parser, `default_scene`, `with_values` and `scene_for_inference`."""
         r = self.ramp
-        if not 0 <= r.angle_deg < 60:
-            raise SceneError(f"ramp.angle_deg must be in [0, 60), got {r.angle_deg}")
+        if not isinstance(r, Ramp):
+            raise SceneError(f"ramp: expected a Ramp, got {show(r)}")
+        ANGLE_DEG.check(r.angle_deg, "ramp.angle_deg")
+        RAMP_SIZE_M.check(r.length_m, "ramp.length_m")
+        RAMP_SIZE_M.check(r.width_m, "ramp.width_m")
+        RAMP_THICKNESS_M.check(r.thickness_m, "ramp.thickness_m")
+        UNIT_M.check(self.unit_m, "unit_m")
+        START_UNITS.check(self.start_units, "start_units")
+        SIM_HZ.check(self.sim_hz, "sim_hz")
+        GRAVITY_MPS2.check(self.gravity_mps2, "gravity_mps2")
+        objs = self.objects
+        if not isinstance(objs, (tuple, list)) or not 1 <= len(objs) <= 2:
+            raise SceneError("objects: expected a list of one (ramp object) or two (ramp object, target) objects")
+        seen: dict[str, int] = {}
+        for i, obj in enumerate(objs):
+            _check_object(obj, i)
+            if obj.name in seen:
+                raise SceneError(f"objects[{i}].name: {show(obj.name)} is also the name of objects[{seen[obj.name]}] "
+                                 f"(names must differ: tracks and trajectories are keyed by them)")
+            seen[obj.name] = i
         ramp_obj = self.ramp_object
         top = self.start_distance_m(ramp_obj) + ramp_obj.shape.size_m[0] / 2
         if top > r.length_m:
             raise SceneError(f"objects[0]: starts {top:.3f} m up the ramp, beyond its length_m {r.length_m}")
         if self.start_distance_m(ramp_obj) - ramp_obj.shape.size_m[0] / 2 < 0:
             raise SceneError("objects[0]: start position puts the object past the ramp's foot")
-        if self.camera is not None and self.sim_hz % self.camera.fps:
-            raise SceneError(f"sim_hz ({self.sim_hz}) must be a multiple of camera.fps ({self.camera.fps})")
+        if not isinstance(self.priors, Priors):
+            raise SceneError(f"priors: expected priors, got {show(self.priors)}")
+        self.priors.check()
         e = self.collision_restitution
         if e is not None:
             if self.target is None:
                 raise SceneError("collision_restitution: this scene has no target object")
-            if isinstance(e, bool) or not isinstance(e, (int, float)) or not 0.0 <= e <= 1.0:
-                raise SceneError(f"collision_restitution: expected a number in [0, 1], got {e!r}")
+            RESTITUTION.check(e, "collision_restitution")
+        if self.camera is not None:
+            if not isinstance(self.camera, Camera):
+                raise SceneError(f"camera: expected a camera, got {show(self.camera)}")
+            check_camera(self.camera)
+            check_run(self.sim_hz, self.camera.fps, self.camera.n_frames, MAX_STEPS)
 
     def to_json(self) -> dict:
         d: dict[str, Any] = {
@@ -358,105 +462,175 @@ class Scene(SceneFile):
 
 # -- parsing with field-named errors ---------------------------------------------------
 
-def _shape(d: dict, path: str) -> Shape:
-    t = field_value(d, "type", path)
-    size = field_value(d, "size_m", path)
-    if not isinstance(size, list) or len(size) != 3 or not all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) for x in size):
-        raise SceneError(f"{path}.size_m: expected three numbers (metres), got {size!r}")
-    shape = Shape(str(t), tuple(size))
+SCENE_FIELDS = ("scenario", "version", "ramp", "unit_m", "start_units", "sim_hz", "gravity_mps2", "objects",
+                "priors", "collision_restitution", "camera")
+RAMP_FIELDS = ("angle_deg", "length_m", "width_m", "thickness_m")
+SHAPE_FIELDS = ("type", "size_m")
+OBJECT_FIELDS = ("name", "role", "shape", "mass_kg", "friction", "restitution", "material")
+RAMP_OBJECT_FIELDS = (*OBJECT_FIELDS, "offset_units")
+TARGET_FIELDS = (*OBJECT_FIELDS, "kind", "distance_m")
+PRIOR_FIELDS = (*LATENT_SPECS, *OPTIONAL_SPECS, "offset_units", "shape_types", "size_m", "observation",
+                "student_t_dof", "infer_sigma", "infer_restitution")
+
+
+def _check_shape(shape: Any, path: str) -> None:
+    if not isinstance(shape, Shape):
+        raise SceneError(f"{path}: expected a shape, got {show(shape)}")
+    if not shape.name:   # an unknown type (a plain Shape)
+        raise SceneError(f"{path}.type: expected one of {', '.join(SHAPE_TYPES)}, got {show(shape.type)}")
+    for k, x in enumerate(shape.size_m):
+        OBJECT_SIZE_M.check(x, f"{path}.size_m[{k}]")
     problem = shape.problem()
     if problem:
         raise SceneError(f"{path}: {problem}")
+
+
+def _check_object(obj: Any, i: int) -> None:
+    """SceneError naming the field unless object `i` is a proper ramp object (i = 0) or target."""
+    path = f"objects[{i}]"
+    if not isinstance(obj, SceneObject):
+        raise SceneError(f"{path}: expected a scene object, got {show(obj)}")
+    want = ROLES[min(i, 1)]
+    if obj.role != want:
+        raise SceneError(f"{path}.role: object {i} must be the {want} object, got {show(obj.role)}")
+    if not isinstance(obj.name, str) or not obj.name.strip():
+        raise SceneError(f"{path}.name: expected a non-empty string, got {show(obj.name)}")
+    if obj.material is not None and not isinstance(obj.material, str):
+        raise SceneError(f"{path}.material: expected a string, got {show(obj.material)}")
+    _check_shape(obj.shape, f"{path}.shape")
+    MASS_KG.check(obj.mass_kg, f"{path}.mass_kg")
+    FRICTION.check(obj.friction, f"{path}.friction")
+    RESTITUTION.check(obj.restitution, f"{path}.restitution")
+    if want == "ramp":
+        OFFSET_UNITS.check(obj.offset_units, f"{path}.offset_units")
+    else:
+        if obj.kind not in TARGET_KINDS:
+            raise SceneError(f"{path}.kind: expected one of {', '.join(TARGET_KINDS)}, got {show(obj.kind)}")
+        DISTANCE_M.check(obj.distance_m, f"{path}.distance_m")
+
+
+def _shape(d: Any, path: str) -> Shape:
+    if not isinstance(d, dict):
+        raise SceneError(f"{path}: expected an object with type and size_m, got {show(d)}")
+    unknown_fields(d, SHAPE_FIELDS, path)
+    t = field_value(d, "type", path)
+    if not isinstance(t, str) or t not in SHAPE_TYPES:
+        raise SceneError(f"{path}.type: expected one of {', '.join(SHAPE_TYPES)}, got {show(t)}")
+    size = field_value(d, "size_m", path)
+    if not isinstance(size, list) or len(size) != 3:
+        raise SceneError(f"{path}.size_m: expected three numbers (metres), got {show(size)}")
+    sizes = tuple(OBJECT_SIZE_M.check(x, f"{path}.size_m[{k}]") for k, x in enumerate(size))
+    shape = Shape(t, sizes)
+    _check_shape(shape, path)
     return shape
 
 
-def _object(d: dict, i: int) -> SceneObject:
+def _object(d: Any, i: int) -> SceneObject:
     path = f"objects[{i}]"
-    role = field_value(d, "role", path, "ramp" if i == 0 else "target")
-    want = "ramp" if i == 0 else "target"
+    if not isinstance(d, dict):
+        raise SceneError(f"{path}: expected an object, got {show(d)}")
+    want = ROLES[min(i, 1)]
+    role = field_value(d, "role", path, want)
     if role != want:
-        raise SceneError(f"{path}.role: object {i} must be the {want} object, got {role!r}")
+        raise SceneError(f"{path}.role: object {i} must be the {want} object, got {show(role)}")
+    unknown_fields(d, RAMP_OBJECT_FIELDS if want == "ramp" else TARGET_FIELDS, path)
     name = field_value(d, "name", path, "ramp_object" if i == 0 else "target")
-    if not isinstance(name, str) or not name:
-        raise SceneError(f"{path}.name: expected a non-empty string")
+    if not isinstance(name, str) or not name.strip():
+        raise SceneError(f"{path}.name: expected a non-empty string, got {show(name)}")
     material = field_value(d, "material", path, None)
     if material is not None and not isinstance(material, str):
-        raise SceneError(f"{path}.material: expected a string")
+        raise SceneError(f"{path}.material: expected a string, got {show(material)}")
     common = dict(
         name=name, role=role, shape=_shape(field_value(d, "shape", path), f"{path}.shape"),
-        mass_kg=number(d, "mass_kg", path, lo=0, lo_open=True),
-        friction=number(d, "friction", path, lo=0, hi=10),
-        restitution=number(d, "restitution", path, 0.0, lo=0, hi=1),
+        mass_kg=number(d, "mass_kg", path, bound=MASS_KG),
+        friction=number(d, "friction", path, bound=FRICTION),
+        restitution=number(d, "restitution", path, 0.0, bound=RESTITUTION),
         material=material)
     if role == "ramp":
-        return SceneObject(**common, offset_units=number(d, "offset_units", path, 0, integer=True))
+        return SceneObject(**common, offset_units=number(d, "offset_units", path, 0, bound=OFFSET_UNITS))
     kind = field_value(d, "kind", path, "cardboard")
-    if kind not in TARGET_KINDS:
-        raise SceneError(f"{path}.kind: expected one of {', '.join(TARGET_KINDS)}, got {kind!r}")
-    return SceneObject(**common, kind=kind, distance_m=number(d, "distance_m", path, lo=0))
+    if not isinstance(kind, str) or kind not in TARGET_KINDS:
+        raise SceneError(f"{path}.kind: expected one of {', '.join(TARGET_KINDS)}, got {show(kind)}")
+    return SceneObject(**common, kind=kind, distance_m=number(d, "distance_m", path, bound=DISTANCE_M))
 
 
-def scene_from_json(data: Any) -> Scene:
-    if not isinstance(data, dict):
-        raise SceneError("expected a JSON object at the top level")
-    scenario = field_value(data, "scenario", "", "ramp")
-    if scenario != "ramp":
-        raise SceneError(f"scenario: this is the ramp scenario's parser, got {scenario!r}")
-    version = field_value(data, "version", "", SCENE_VERSION)
-    if version != SCENE_VERSION:
-        raise SceneError(f"version: this Galileo reads scene version {SCENE_VERSION}, got {version!r}")
-    rd = field_value(data, "ramp", "")
-    ramp = Ramp(angle_deg=number(rd, "angle_deg", "ramp", lo=0, hi=59.9),
-                length_m=number(rd, "length_m", "ramp", 0.9, lo=0, lo_open=True),
-                width_m=number(rd, "width_m", "ramp", 0.3, lo=0, lo_open=True),
-                thickness_m=number(rd, "thickness_m", "ramp", 0.02, lo=0, lo_open=True))
-    objs = field_value(data, "objects", "")
-    if not isinstance(objs, list) or not 1 <= len(objs) <= 2:
-        raise SceneError("objects: expected a list of one (ramp object) or two (ramp object, target) objects")
-    objects = tuple(_object(o, i) for i, o in enumerate(objs))
-    pd = field_value(data, "priors", "", {})
+def _priors(pd: Any) -> Priors:
+    if not isinstance(pd, dict):
+        raise SceneError(f"priors: expected an object, got {show(pd)}")
+    unknown_fields(pd, PRIOR_FIELDS, "priors")
     base = Priors()
     bounds = {}
-    for k, v in base.bounds.items():
-        lo, hi = pair(pd, k, "priors", list(v))
-        try:
-            bounds[k] = check_bounds(LATENT_SPECS[k], lo, hi)
-        except ValueError as e:
-            raise SceneError(f"priors.{e}") from None
-    for k in OPTIONAL_SPECS:   # the optional latents' bounds, where given
-        if k in pd:
-            lo, hi = pair(pd, k, "priors", None)
+    for k, spec in ALL_SPECS.items():   # the four latents' bounds (defaults if not given), the optional ones' if given
+        if k in base.bounds or k in pd:
+            lo, hi = pair(pd, k, "priors", list(spec.bounds))
             try:
-                bounds[k] = check_bounds(OPTIONAL_SPECS[k], lo, hi)
+                bounds[k] = check_bounds(spec, lo, hi)
             except ValueError as e:
                 raise SceneError(f"priors.{e}") from None
     observation = field_value(pd, "observation", "priors", base.observation)
     if not isinstance(observation, str) or observation not in OBSERVATIONS:
-        raise SceneError(f"priors.observation: expected one of {', '.join(OBSERVATIONS)}, got {observation!r}")
-    dof = number(pd, "student_t_dof", "priors", base.student_t_dof, lo=0, lo_open=True)
+        raise SceneError(f"priors.observation: expected one of {', '.join(OBSERVATIONS)}, got {show(observation)}")
+    dof = number(pd, "student_t_dof", "priors", base.student_t_dof, bound=STUDENT_T_DOF)
     flags = {}
     for flag in ("infer_sigma", "infer_restitution"):
         flags[flag] = field_value(pd, flag, "priors", False)
         if not isinstance(flags[flag], bool):
-            raise SceneError(f"priors.{flag}: expected true or false, got {flags[flag]!r}")
-    off = pair(pd, "offset_units", "priors", list(base.offset_units))
+            raise SceneError(f"priors.{flag}: expected true or false, got {show(flags[flag])}")
+    off = pair(pd, "offset_units", "priors", list(base.offset_units), integer=True)
+    for x in off:
+        OFFSET_UNITS.check(x, "priors.offset_units")
+    size = pair(pd, "size_m", "priors", list(base.size_m))
+    for x in size:
+        PRIOR_SIZE_M.check(x, "priors.size_m")
     types = field_value(pd, "shape_types", "priors", list(base.shape_types))
-    if not isinstance(types, list) or not types or any(t not in SHAPE_TYPES for t in types):
-        raise SceneError(f"priors.shape_types: expected a non-empty list from {', '.join(SHAPE_TYPES)}")
-    priors = Priors(bounds=bounds, offset_units=(int(off[0]), int(off[1])), shape_types=tuple(types),
-                    size_m=pair(pd, "size_m", "priors", list(base.size_m)), observation=observation,
-                    student_t_dof=dof, **flags)
+    if not isinstance(types, list) or not types or any(not isinstance(t, str) or t not in SHAPE_TYPES for t in types):
+        raise SceneError(f"priors.shape_types: expected a non-empty list from {', '.join(SHAPE_TYPES)}, "
+                         f"got {show(types)}")
+    priors = Priors(bounds=bounds, offset_units=off, shape_types=tuple(types), size_m=size,
+                    observation=observation, student_t_dof=dof, **flags)
+    priors.check()
+    return priors
+
+
+def scene_from_json(data: Any) -> Scene:
+    """Parse and validate a ramp scene file's JSON (SceneError naming the field and the bound)."""
+    if not isinstance(data, dict):
+        raise SceneError(f"expected a JSON object at the top level, got {show(data)}")
+    scenario = field_value(data, "scenario", "", "ramp")
+    if scenario != "ramp":
+        raise SceneError(f"scenario: this is the ramp scenario's parser, got {show(scenario)}")
+    version = field_value(data, "version", "", SCENE_VERSION)
+    if not is_number(version) or version != SCENE_VERSION:
+        raise SceneError(f"version: this Galileo reads scene version {SCENE_VERSION}, got {show(version)}")
+    try:
+        unknown_fields(data, SCENE_FIELDS, "")
+    except SceneError as e:
+        if "scenario" not in data:   # e.g. a splash scene that lost its "scenario"
+            raise SceneError(f'{e} (a file without "scenario" is read as a ramp scene)') from None
+        raise
+    rd = field_value(data, "ramp", "")
+    if not isinstance(rd, dict):
+        raise SceneError(f"ramp: expected an object, got {show(rd)}")
+    unknown_fields(rd, RAMP_FIELDS, "ramp")
+    ramp = Ramp(angle_deg=number(rd, "angle_deg", "ramp", bound=ANGLE_DEG),
+                length_m=number(rd, "length_m", "ramp", 0.9, bound=RAMP_SIZE_M),
+                width_m=number(rd, "width_m", "ramp", 0.3, bound=RAMP_SIZE_M),
+                thickness_m=number(rd, "thickness_m", "ramp", 0.02, bound=RAMP_THICKNESS_M))
+    objs = field_value(data, "objects", "")
+    if not isinstance(objs, list) or not 1 <= len(objs) <= 2:
+        raise SceneError("objects: expected a list of one (ramp object) or two (ramp object, target) objects")
+    objects = tuple(_object(o, i) for i, o in enumerate(objs))
+    priors = _priors(field_value(data, "priors", "", {}))
     cam = field_value(data, "camera", "", None)
     collision = field_value(data, "collision_restitution", "", None)
     if collision is not None:
-        collision = number(data, "collision_restitution", "", lo=0, hi=1)
+        collision = number(data, "collision_restitution", "", bound=RESTITUTION)
     scene = Scene(
         ramp=ramp, objects=objects, camera=camera_from_json(cam) if cam is not None else None,
-        unit_m=number(data, "unit_m", "", 0.02, lo=0, lo_open=True),
-        start_units=number(data, "start_units", "", 30.0, lo=0),
-        sim_hz=number(data, "sim_hz", "", 240, lo=1, integer=True),
-        gravity_mps2=number(data, "gravity_mps2", "", 9.81, lo=0),
+        unit_m=number(data, "unit_m", "", 0.02, bound=UNIT_M),
+        start_units=number(data, "start_units", "", 30.0, bound=START_UNITS),
+        sim_hz=number(data, "sim_hz", "", 240, bound=SIM_HZ),
+        gravity_mps2=number(data, "gravity_mps2", "", 9.81, bound=GRAVITY_MPS2),
         priors=priors, collision_restitution=collision)
     scene.validate()
     return scene

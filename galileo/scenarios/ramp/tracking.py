@@ -260,7 +260,7 @@ def held_still(scene: Scene, n_frames: int) -> Tracks:
         objects.append(ObjectTrack(obj.name, obj.role, pos, np.zeros((n_frames, 3)), vis, obj.shape,
                                    obj.offset_units if obj.role == "ramp" else None, "scene",
                                    center_px=cam.project(pos)))
-    return Tracks(cam.fps, objects, [still_note(scene)])
+    return Tracks(cam.fps, objects, [still_note(scene)]).check()
 
 
 # -- the whole pipeline ------------------------------------------------------------------------
@@ -271,12 +271,9 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
     if scene.camera is None:
         raise GalileoError("the scene file has no camera: tracking needs one that describes the video")
     cam = scene.camera
-    gray, chroma, info = read_video_yuv(video_path)
-    if info.n_frames < 2:
-        raise GalileoError(f"video {video_path} has only {info.n_frames} frame: need at least 2 to see motion")
-    if (info.width_px, info.height_px) != (cam.width_px, cam.height_px):
-        raise GalileoError(f"video {video_path} is {info.width_px}x{info.height_px} but the scene's camera is "
-                           f"{cam.width_px}x{cam.height_px}")
+    # the video must be the one the camera describes: its size, frame rate and length
+    # (galileo.video.check_stream / check_length say why each is checked as it is)
+    gray, chroma, info = read_video_yuv(video_path, cam, min_frames=2)
     n = len(gray)
     fps = cam.fps
     bar = tqdm(total=3 * n, desc="tracking", unit="frame", disable=not progress)
@@ -391,7 +388,7 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
         centre_px[vis] = cam.project(pos[vis])
         objects.append(ObjectTrack(obj.name, obj.role, pos, vel, vis.copy(), f0.shape, offsets.get(obj.name),
                                    how, center_px=centre_px, features_px=t.features))
-    tracks = Tracks(fps, objects)
+    tracks = Tracks(fps, objects).check()   # what `galileo track` writes, `Tracks.load` reads
     if debug_video is not None:
         write_debug_video(debug_video, (yuv_to_rgb(g, c) for g, c in zip(gray, chroma)), tracks, fps)
     return tracks

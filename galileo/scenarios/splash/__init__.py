@@ -51,7 +51,9 @@ class SplashScenario(Scenario):
     def prepare(self, scene, tracks):
         """The scene with the bottom-up shape kind and volume from the tracks (when they carry
         them; a volume estimated past the prior's 0.01-100 cm^3 is clipped into it, where a
-        scene file's is refused); checks that the tracks hold one object at the camera's rate."""
+        scene file's is refused); checks that the tracks hold one object at the camera's rate,
+        seen in some frame."""
+        tracks.check().require_visible()     # before any chain starts
         if len(tracks.objects) != 1:
             raise GalileoError(f"splash tracks hold one object, got {len(tracks.objects)}")
         if scene.camera is None:

@@ -60,11 +60,29 @@ def metres_per_pixel(scene: SplashScene) -> float:
     return float(p[2] / math.sqrt(cam.K[0, 0] * cam.K[1, 1]))
 
 
+def check_sigma(sigma) -> float:
+    """The sigma (px) as a float: finite and within the scenario's noise limits (GalileoError
+    otherwise: a NaN, infinite, zero or underflowing sigma makes every log-likelihood NaN
+    or infinite)."""
+    from ...latents import check_noise
+    from . import SplashScenario
+
+    try:
+        return check_noise(SplashScenario.noise, sigma)
+    except ValueError as e:
+        raise GalileoError(f"likelihood: {e}") from None
+
+
 class SplashLikelihood:
     """Callable log-likelihood over (area_cm2, density_g_cm3, drag_water, start_step)."""
 
     def __init__(self, scene: SplashScene, tracks: Tracks, sigma_px: float = SIGMA_PX, speedups: bool = True,
                  cache_size: int = 4):
+        self.sigma_px = check_sigma(sigma_px)
+        tracks.check()
+        tracks.require_visible()
+        if len(tracks.objects) != 1:
+            raise GalileoError(f"splash tracks hold one object, got {len(tracks.objects)}")
         self.scene = scene
         self.names = LATENT_NAMES
         self.fps = tracks.fps
@@ -72,7 +90,6 @@ class SplashLikelihood:
             raise GalileoError(f"tracks at {tracks.fps:g} fps but the scene camera at {scene.fps:g} fps")
         self.n_frames = tracks.n_frames
         self.speedups = speedups
-        self.sigma_px = float(sigma_px)
         mpp = metres_per_pixel(scene)
         self.sigma_x_m = self.sigma_px * mpp
         self.sigma_v_mps = self.sigma_px * mpp * self.fps

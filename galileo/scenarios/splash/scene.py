@@ -40,32 +40,62 @@ from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 
-from ...camera import Camera, camera_from_json, look_at_camera
+from ...camera import Camera, camera_from_json, check_camera, check_run, look_at_camera
 from ...errors import SceneError
-from ...fields import field_value, number, pair
+from ...fields import (Bound, field_value, is_finite_number, is_number, number, pair, show, unknown_fields,
+                       where_of)
 from ...latents import Latent, check_bounds
 from ...model import SceneFile
 from ...shapes import Box, Cylinder, Shape
 
 SCENE_VERSION = 1
 KINDS = ("box", "vcyl", "hcyl")   # square-bottomed box, vertical cylinder, horizontal cylinder
-VOLUME_RANGE_CM3 = (0.01, 100.0)
 MIN_DIM_M = 0.002                 # no dimension below 2 mm
 WATER_DENSITY_KG_M3 = 1000.0
 RELEASE_ABOVE_WATER_M = 0.15   # the default scene's drop: 0.17 s (41 steps) of fall in air
 CM3 = 1e-6                        # m^3 per cm^3
 CM2 = 1e-4                        # m^2 per cm^2
 
+# -- what a splash scene may hold: every bound in one place, each with its reason ------------------
+# (checked where a file is parsed, where a scene is built in code and by `with_values`, so by
+# `galileo simulate --set` too; an error names the field and the bound)
+VOLUME_CM3 = Bound(0.01, 100.0)             # the seed's objects: 0.01 cm^3 (a 2 mm bead) to 100 cm^3 (a fist)
+VOLUME_RANGE_CM3 = (VOLUME_CM3.lo, VOLUME_CM3.hi)
+AREA_CM2 = Bound(0.0, 1000.0, lo_open=True)   # bottom area: above 0; at most 1000 cm^2 (a 32 cm square, the
+# size of the tank; the shape must also fit the tank, checked with it)
+DENSITY_G_CM3 = Bound(0.0, 25.0, lo_open=True)  # above 0 (Bullet needs a mass), at most 25 g/cm^3 (osmium's
+# 22.6 is the densest element)
+DRAG_WATER = Bound(0.0, 100.0)              # a drag coefficient: 0 (none: a free fall), about 1 for a blunt body
+# and 2 for a plate broadside; at most 100 (50 plates), far beyond any body yet finite. The latent's prior
+# bounds must lie in (0, 100]: above 0, as the paper's prior U(0.001, 2)
+START_STEP = Bound(0, 1000, integer=True)   # the physics step shown as frame 0: whole steps (never rounded), at
+# most 1000 (4 s at 240 Hz: the object has long settled)
+TANK_SIZE_M = Bound(0.02, 3.0)              # the tank's inner sizes: 2 cm (room for a 2 mm object) to 3 m (a
+# tank on a lab floor)
+WALL_M = Bound(0.0, 0.1, lo_open=True)      # glass walls: above 0 (Bullet needs a body), at most 10 cm
+LIQUID_DENSITY_KG_M3 = Bound(1.0, 5000.0)   # the liquid: from a gas-like 1 kg/m^3 to 5000 kg/m^3 (denser than any
+# liquid but mercury and molten metals)
+MAX_DROP_M = 1.0                            # the release point at most 1 m above the water (from higher the object
+# hits the water at over 4.4 m/s, a splash beyond this model, and leaves the camera's view)
+SIM_HZ = Bound(60, 10_000, integer=True)    # Bullet steps per second: at least 60 (the water's forces are applied
+# once a step: slower, a falling object crosses the surface in one), at most 10 kHz (40x the cost of 240)
+GRAVITY_MPS2 = Bound(0.0, 100.0)            # downwards, 0 (nothing falls) to 100 m/s^2 (10 g; beyond any lab)
+MAX_STEPS = 2_000_000                       # physics steps of one simulated video (start_step + frames x sim_hz /
+# fps) at most: about a minute of Bullet; inference repeats it thousands of times
+
 LATENT_SPECS = {
     "area_cm2": Latent("area_cm2", "cm^2", (0.1, 20.0), "area the object shows the water from below (drag, shape)",
-                       limits=(0.0, 1000.0), limits_open_low=True, narrow=0.05, broad=0.5),
+                       limits=(AREA_CM2.lo, AREA_CM2.hi), limits_open_low=True, narrow=0.05, broad=0.5),
     "density_g_cm3": Latent("density_g_cm3", "g/cm^3", (0.001, 2.0), "object's density (mass = density x volume)",
-                            limits=(0.0, 25.0), limits_open_low=True, narrow=0.05, broad=0.5),
+                            limits=(DENSITY_G_CM3.lo, DENSITY_G_CM3.hi), limits_open_low=True, narrow=0.05, broad=0.5),
     "drag_water": Latent("drag_water", "1", (0.001, 2.0), "drag coefficient in water (in air: 1e-3 x this)",
-                         limits=(0.0, 100.0), limits_open_low=True, narrow=0.0005, broad=0.002),
+                         limits=(DRAG_WATER.lo, DRAG_WATER.hi), limits_open_low=True, narrow=0.0005, broad=0.002),
     "start_step": Latent("start_step", "step", (5.0, 30.0), "physics step shown as the video's frame 0",
-                          limits=(0.0, 1000.0), narrow=1.0, broad=1.0, integer=True),
+                          limits=(START_STEP.lo, START_STEP.hi), narrow=1.0, broad=1.0, integer=True),
 }
+# each value `with_values` takes, with its bound
+VALUE_BOUNDS = {"area_cm2": AREA_CM2, "density_g_cm3": DENSITY_G_CM3, "drag_water": DRAG_WATER,
+                "start_step": START_STEP, "volume_cm3": VOLUME_CM3}
 LATENT_NAMES = tuple(LATENT_SPECS)
 
 
@@ -179,17 +209,27 @@ class SplashScene(SceneFile):
                 "start_step": float(self.start_step)}
 
     def with_values(self, values: dict[str, float]) -> "SplashScene":
+        """A copy with latents (area_cm2, density_g_cm3, drag_water, start_step) and the volume
+        set; each value checked against its bound (a start step of 5.5 is refused, not
+        rounded), then the new scene validated as a whole."""
         obj, start = self.obj, self.start_step
         for name, value in values.items():
+            if name not in VALUE_BOUNDS:
+                raise SceneError(f"unknown name {show(name)}; expected one of {', '.join(LATENT_NAMES)}, volume_cm3")
+            v = VALUE_BOUNDS[name].check(value, name)
             if name == "start_step":
-                start = int(round(value))
-            elif name in ("area_cm2", "density_g_cm3", "drag_water", "volume_cm3"):
-                obj = replace(obj, **{name: float(value)})
+                start = v
             else:
-                raise SceneError(f"unknown name {name!r}; expected one of {', '.join(LATENT_NAMES)}, volume_cm3")
+                obj = replace(obj, **{name: v})
         new = replace(self, obj=obj, start_step=start)
         new.validate()
         return new
+
+    def check_simulation(self, n_frames: int, fps: float, names: tuple[str, str] = ("fps", "n_frames")) -> None:
+        """SceneError unless `n_frames` frames at `fps` can be simulated in this scene (after its
+        start_step steps): fps in [1, 1000], n_frames in [1, 100000], sim_hz a multiple of fps,
+        at most MAX_STEPS physics steps (`names`: what to call fps and n_frames in a message)."""
+        check_run(self.sim_hz, fps, n_frames, MAX_STEPS, self.start_step, names=names)
 
     # -- geometry -------------------------------------------------------------------------------
     @property
@@ -208,29 +248,58 @@ class SplashScene(SceneFile):
 
     # -- validation & IO ----------------------------------------------------------------------------
     def validate(self) -> None:
+        """SceneError naming the field (as the scene file writes it) unless every number lies
+        in its bound (the constants at the top of this module) and the cross-field rules hold:
+        the object fits the tank, the water is inside the tank, the release point is inside the
+        tank and above the water (at most MAX_DROP_M), the priors are proper, the camera is a
+        proper pinhole camera whose video sim_hz steps evenly in at most MAX_STEPS steps."""
         t, o = self.tank, self.obj
-        if not VOLUME_RANGE_CM3[0] <= o.volume_cm3 <= VOLUME_RANGE_CM3[1]:
-            raise SceneError(f"object.volume_cm3: {o.volume_cm3:g} is outside {VOLUME_RANGE_CM3[0]:g}-"
-                             f"{VOLUME_RANGE_CM3[1]:g} cm^3")
+        if not isinstance(t, Tank):
+            raise SceneError(f"tank: expected a tank, got {show(t)}")
+        if not isinstance(o, SplashObject):
+            raise SceneError(f"object: expected an object, got {show(o)}")
+        if not isinstance(t.size_m, (tuple, list)) or len(t.size_m) != 3:
+            raise SceneError(f"tank.size_m: expected three numbers (metres), got {show(t.size_m)}")
+        for k, x in enumerate(t.size_m):
+            TANK_SIZE_M.check(x, f"tank.size_m[{k}]")
+        WALL_M.check(t.wall_m, "tank.wall_m")
+        LIQUID_DENSITY_KG_M3.check(t.water_density_kg_m3, "tank.water_density_kg_m3")
+        Bound(0.0, t.size_m[2], lo_open=True, hi_open=True).check(t.water_level_m, "tank.water_level_m")
+        if not isinstance(o.name, str) or not o.name.strip():
+            raise SceneError(f"object.name: expected a non-empty string, got {show(o.name)}")
+        if o.material is not None and not isinstance(o.material, str):
+            raise SceneError(f"object.material: expected a string, got {show(o.material)}")
         if o.kind not in KINDS:
-            raise SceneError(f"object.kind: expected one of {', '.join(KINDS)}, got {o.kind!r}")
+            raise SceneError(f"object.kind: expected one of {', '.join(KINDS)}, got {show(o.kind)}")
+        VOLUME_CM3.check(o.volume_cm3, "object.volume_cm3")
+        AREA_CM2.check(o.area_cm2, "object.area_cm2")
+        DENSITY_G_CM3.check(o.density_g_cm3, "object.density_g_cm3")
+        DRAG_WATER.check(o.drag_water, "object.drag_water")
         if self.dims() is None:
             raise SceneError(f"object: no {o.kind} of {o.volume_cm3:g} cm^3 shows {o.area_cm2:g} cm^2 from below and "
                              f"fits the tank (each side between {MIN_DIM_M * 1000:g} mm and "
                              f"{self.max_dim_m() * 100:.1f} cm)")
-        if not 0 < t.water_level_m < t.size_m[2]:
-            raise SceneError(f"tank.water_level_m: {t.water_level_m:g} must lie between the floor and the tank's "
-                             f"height {t.size_m[2]:g}")
-        x, y, z = self.release_m
+        rel = self.release_m
+        if not isinstance(rel, (tuple, list)) or len(rel) != 3 or not all(is_finite_number(x) for x in rel):
+            raise SceneError(f"release_m: expected three numbers (metres), got {show(rel)}")
+        x, y, z = rel
         hx, hy = t.size_m[0] / 2, t.size_m[1] / 2
         if not (-hx < x < hx and -hy < y < hy):
             raise SceneError(f"release_m: ({x:g}, {y:g}) is outside the tank's inner {2 * hx:g} x {2 * hy:g} m")
         if z <= t.water_level_m:
             raise SceneError(f"release_m: the object must be let go above the water (z > {t.water_level_m:g} m)")
-        if self.start_step < 0:
-            raise SceneError("start_step: must be >= 0")
-        if self.camera is not None and self.sim_hz % self.camera.fps:
-            raise SceneError(f"sim_hz ({self.sim_hz}) must be a multiple of camera.fps ({self.camera.fps})")
+        if z > t.water_level_m + MAX_DROP_M:
+            raise SceneError(f"release_m: z = {z:g} m is more than {MAX_DROP_M:g} m above the water "
+                             f"(at {t.water_level_m:g} m)")
+        START_STEP.check(self.start_step, "start_step")
+        SIM_HZ.check(self.sim_hz, "sim_hz")
+        GRAVITY_MPS2.check(self.gravity_mps2, "gravity_mps2")
+        check_priors(self.bounds)
+        if self.camera is not None:
+            if not isinstance(self.camera, Camera):
+                raise SceneError(f"camera: expected a camera, got {show(self.camera)}")
+            check_camera(self.camera)
+            check_run(self.sim_hz, self.camera.fps, self.camera.n_frames, MAX_STEPS, self.start_step)
 
     def to_json(self) -> dict:
         d: dict[str, Any] = {"scenario": self.scenario, "version": SCENE_VERSION, "tank": self.tank.to_json(),
@@ -244,58 +313,93 @@ class SplashScene(SceneFile):
 
 
 
-def _vector3(d: dict, key: str, path: str) -> tuple[float, float, float]:
+SCENE_FIELDS = ("scenario", "version", "tank", "object", "release_m", "start_step", "sim_hz", "gravity_mps2",
+                "priors", "camera")
+TANK_FIELDS = ("size_m", "wall_m", "water_level_m", "water_density_kg_m3")
+OBJECT_FIELDS = ("name", "kind", "volume_cm3", "area_cm2", "density_g_cm3", "drag_water", "material")
+
+
+def check_priors(bounds: Any, path: str = "priors") -> None:
+    """SceneError naming the latent unless `bounds` holds proper bounds for each latent (both
+    numbers, low below high, inside its limits; whole numbers for start_step)."""
+    if not isinstance(bounds, dict):
+        raise SceneError(f"{path}: expected bounds by latent name, got {show(bounds)}")
+    for name in bounds:
+        if name not in LATENT_SPECS:
+            raise SceneError(f"{where_of(path, name)}: unknown latent; expected one of {', '.join(LATENT_NAMES)}")
+    for name, lat in LATENT_SPECS.items():
+        b = bounds.get(name)
+        if (not isinstance(b, (tuple, list)) or len(b) != 2 or not all(is_finite_number(x) for x in b)
+                or (lat.integer and not all(float(x).is_integer() for x in b))):
+            what = "two whole numbers" if lat.integer else "two numbers"
+            raise SceneError(f"{path}.{name}: expected [low, high], {what}, got {show(b)}")
+        try:
+            check_bounds(lat, *b)
+        except ValueError as e:
+            raise SceneError(f"{path}.{e}") from None
+
+
+def _vector3(d: dict, key: str, path: str, bound: Bound = Bound()) -> tuple[float, float, float]:
     v = field_value(d, key, path)
-    where = f"{path}.{key}".lstrip(".")
-    if (not isinstance(v, list) or len(v) != 3
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
-        raise SceneError(f"{where}: expected three numbers (metres), got {v!r}")
-    return float(v[0]), float(v[1]), float(v[2])
+    where = where_of(path, key)
+    if not isinstance(v, list) or len(v) != 3 or not all(is_number(x) for x in v):
+        raise SceneError(f"{where}: expected three numbers (metres), got {show(v)}")
+    x, y, z = (bound.check(x, f"{where}[{k}]") for k, x in enumerate(v))
+    return x, y, z
 
 
 def scene_from_json(data: Any) -> SplashScene:
+    """Parse and validate a splash scene file's JSON (SceneError naming the field and the bound)."""
     if not isinstance(data, dict):
-        raise SceneError("expected a JSON object at the top level")
-    if field_value(data, "scenario", "") != "splash":
-        raise SceneError("scenario: this is the splash scenario's parser")
+        raise SceneError(f"expected a JSON object at the top level, got {show(data)}")
+    scenario = field_value(data, "scenario", "")
+    if scenario != "splash":
+        raise SceneError(f"scenario: this is the splash scenario's parser, got {show(scenario)}")
     version = field_value(data, "version", "", SCENE_VERSION)
-    if version != SCENE_VERSION:
-        raise SceneError(f"version: this Galileo reads splash scene version {SCENE_VERSION}, got {version!r}")
+    if not is_number(version) or version != SCENE_VERSION:
+        raise SceneError(f"version: this Galileo reads splash scene version {SCENE_VERSION}, got {show(version)}")
+    unknown_fields(data, SCENE_FIELDS, "")
     td = field_value(data, "tank", "")
-    size = _vector3(td, "size_m", "tank")
-    if min(size) <= 0:
-        raise SceneError(f"tank.size_m: expected three positive sizes, got {list(size)}")
-    tank = Tank(size, number(td, "wall_m", "tank", 0.006, lo=0, lo_open=True, hi=0.1),
-                number(td, "water_level_m", "tank", lo=0, lo_open=True),
-                number(td, "water_density_kg_m3", "tank", WATER_DENSITY_KG_M3, lo=1, hi=5000))
+    if not isinstance(td, dict):
+        raise SceneError(f"tank: expected an object, got {show(td)}")
+    unknown_fields(td, TANK_FIELDS, "tank")
+    size = _vector3(td, "size_m", "tank", TANK_SIZE_M)
+    tank = Tank(size, number(td, "wall_m", "tank", 0.006, bound=WALL_M),
+                number(td, "water_level_m", "tank", bound=Bound(0.0, size[2], lo_open=True, hi_open=True)),
+                number(td, "water_density_kg_m3", "tank", WATER_DENSITY_KG_M3,
+                       bound=LIQUID_DENSITY_KG_M3))
     od = field_value(data, "object", "")
+    if not isinstance(od, dict):
+        raise SceneError(f"object: expected an object, got {show(od)}")
+    unknown_fields(od, OBJECT_FIELDS, "object")
     kind = field_value(od, "kind", "object")
-    if kind not in KINDS:
-        raise SceneError(f"object.kind: expected one of {', '.join(KINDS)}, got {kind!r}")
+    if not isinstance(kind, str) or kind not in KINDS:
+        raise SceneError(f"object.kind: expected one of {', '.join(KINDS)}, got {show(kind)}")
     name = field_value(od, "name", "object", "object")
-    if not isinstance(name, str) or not name:
-        raise SceneError("object.name: expected a non-empty string")
+    if not isinstance(name, str) or not name.strip():
+        raise SceneError(f"object.name: expected a non-empty string, got {show(name)}")
     material = field_value(od, "material", "object", None)
     if material is not None and not isinstance(material, str):
-        raise SceneError("object.material: expected a string")
-    obj = SplashObject(name, kind, number(od, "volume_cm3", "object", lo=0, lo_open=True),
-                       number(od, "area_cm2", "object", lo=0, lo_open=True),
-                       number(od, "density_g_cm3", "object", lo=0, lo_open=True, hi=25),
-                       number(od, "drag_water", "object", lo=0, hi=100), material)
+        raise SceneError(f"object.material: expected a string, got {show(material)}")
+    obj = SplashObject(name, kind, number(od, "volume_cm3", "object", bound=VOLUME_CM3),
+                       number(od, "area_cm2", "object", bound=AREA_CM2),
+                       number(od, "density_g_cm3", "object", bound=DENSITY_G_CM3),
+                       number(od, "drag_water", "object", bound=DRAG_WATER), material)
     pd = field_value(data, "priors", "", {})
+    if not isinstance(pd, dict):
+        raise SceneError(f"priors: expected an object, got {show(pd)}")
+    unknown_fields(pd, LATENT_NAMES, "priors")
     bounds = {}
     for k, lat in LATENT_SPECS.items():
-        lo, hi = pair(pd, k, "priors", list(lat.bounds))
-        try:
-            bounds[k] = check_bounds(lat, lo, hi)
-        except ValueError as e:
-            raise SceneError(f"priors.{e}") from None
+        bounds[k] = pair(pd, k, "priors", list(lat.bounds), integer=lat.integer)
+    check_priors(bounds)
+    bounds = {k: (float(lo), float(hi)) for k, (lo, hi) in bounds.items()}
     cam = field_value(data, "camera", "", None)
     scene = SplashScene(tank, obj, _vector3(data, "release_m", ""),
-                        number(data, "start_step", "", 10, lo=0, hi=10_000, integer=True),
+                        number(data, "start_step", "", 10, bound=START_STEP),
                         camera_from_json(cam) if cam is not None else None,
-                        number(data, "sim_hz", "", 240, lo=1, hi=10_000, integer=True),
-                        number(data, "gravity_mps2", "", 9.81, lo=0, hi=100), bounds)
+                        number(data, "sim_hz", "", 240, bound=SIM_HZ),
+                        number(data, "gravity_mps2", "", 9.81, bound=GRAVITY_MPS2), bounds)
     scene.validate()
     return scene
 

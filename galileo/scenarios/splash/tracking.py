@@ -172,13 +172,10 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     cam = scene.camera
     if cam is None:
         raise GalileoError("the scene file has no camera: tracking needs one that describes the video")
-    gray, chroma, info = read_video_yuv(video_path)
+    # the video must be the one the camera describes: its size, frame rate and length
+    # (galileo.video.check_stream / check_length say why each is checked as it is)
+    gray, chroma, info = read_video_yuv(video_path, cam, min_frames=3)
     n = len(gray)
-    if n < 3:
-        raise GalileoError(f"video {video_path} has only {n} frames: need at least 3 to see motion")
-    if (info.width_px, info.height_px) != (cam.width_px, cam.height_px):
-        raise GalileoError(f"video {video_path} is {info.width_px}x{info.height_px} but the scene's camera is "
-                           f"{cam.width_px}x{cam.height_px}")
     hw = gray.shape[1:]
     yuv = np.stack([np.concatenate([g[..., None], resize_to(c, hw)], -1) for g, c in zip(gray, chroma)])
     noise = noise_sd(yuv)
@@ -254,4 +251,4 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     vel = velocity_from_positions(pos, visible, cam.fps)
     obj = ObjectTrack(scene.obj.name, "object", pos, vel, visible, shape, None, "motion",
                       {"kind": kind, "volume_cm3": volume_cm3(kind, w, h)}, centre, features)
-    return Tracks(cam.fps, [obj])
+    return Tracks(cam.fps, [obj]).check()   # what `galileo track` writes, `Tracks.load` reads
