@@ -347,23 +347,53 @@ class InProcess:
 
 
 class LocalPool:
-    """Forked worker processes (each with its own pybullet client and likelihood cache),
-    all started at once from the calling thread before any other thread can exist."""
+    """Worker processes (each with its own pybullet client and likelihood cache), all started
+    at once. `context` "fork" (the default) copies this process as it is: make such a pool from
+    the calling thread before any other thread exists (a fork copies only the calling thread,
+    and every open socket). "spawn" starts each worker afresh (a few seconds): what a pool made
+    later, with threads and sockets about (the app's viewer), must use; its workers know the
+    built-in scenarios, not ones `registry.register`ed at run time."""
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, context: str = "fork"):
         self.workers = int(workers)
-        self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("fork"), initializer=_ignore_sigint)
+        self.context = context
+        self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context(context), initializer=_ignore_sigint)
         try:
             for f in [self._pool.submit(_ping) for _ in range(self.workers)]:
                 f.result()
         except BrokenProcessPool as e:
-            raise GalileoError(f"inference workers failed to start: {e}") from None
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            raise WorkerDied(f"inference workers failed to start: {e}") from None
+        self._procs = dict(self._pool._processes)   # pid -> Process (kept: a broken pool forgets them)
+
+    def pids(self) -> list[int]:
+        """The worker processes' ids."""
+        return sorted(self._procs)
 
     def map(self, fn, iterable: Iterable):
         try:
             yield from self._pool.map(fn, iterable)
         except BrokenProcessPool as e:
             raise WorkerDied(f"an inference worker died: {e}") from None
+
+    def dead_workers(self) -> list[dict]:
+        """After a `WorkerDied` and `shutdown`: the workers that died of their own, as
+        {"pid", "exitcode", "how"} (the pool terminates the others with SIGTERM; a worker that
+        was itself sent SIGTERM is among them, so with none found every worker is listed)."""
+        import signal
+
+        def how(code):
+            if code is None:
+                return "still running"
+            if code < 0:
+                try:
+                    return f"killed by {signal.Signals(-code).name}"
+                except ValueError:
+                    return f"killed by signal {-code}"
+            return f"exited with code {code}"
+        every = [{"pid": pid, "exitcode": p.exitcode, "how": how(p.exitcode)} for pid, p in sorted(self._procs.items())]
+        own = [w for w in every if w["exitcode"] not in (None, -signal.SIGTERM)]
+        return own or every
 
     def shutdown(self) -> None:
         self._pool.shutdown(wait=True, cancel_futures=True)

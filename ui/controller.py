@@ -29,6 +29,15 @@ that they can be watched and steered:
   "event" with each event dict, in the order things happened. Without a background thread
   an event is delivered by the steering call itself. "error" with {"message"} if a round fails
   in the background thread (the thread then stops).
+* A worker process that dies (killed, out of memory) breaks the pool: the round's results,
+  none committed, are dropped, the pool is made anew (spawned: other threads exist by then)
+  and the round runs again from the chains' committed state and random streams, so the
+  chains are those of a run in which nothing died. A "worker_died" event records it (the
+  sweep, which workers and how, the restarts so far), a line on stderr says it, and
+  `status()["workers"]` carries it for the viewer. After WORKER_DEATHS_IN_A_ROW deaths with no
+  round completed between them within WORKER_DEATHS_WINDOW_S, every running chain pauses
+  instead (a "pause" event with the reason); resuming starts a new pool. `resume` also
+  restarts the background thread when an error stopped it.
 * With a `session_dir` the state is saved there (see `ui.session`) at most every
   `save_every_s` while rounds run, on `stop()`, `close()` and `save()`; `Controller.load`
   restores it exactly and the chains go on as if never interrupted.
@@ -57,6 +66,7 @@ import copy
 import logging
 import math
 import os
+import sys
 import threading
 import time
 from collections import deque
@@ -80,6 +90,10 @@ log = logging.getLogger(__name__)
 
 Listener = Callable[[str, dict], None]
 PAPER_SWEEPS = 75          # the paper's sweeps per chain (the sweep target's and warm-up's default)
+# worker deaths: the pool is made anew and the round run again, unless this many died in a row
+# (no round completed between them) within this many seconds: then every chain pauses
+WORKER_DEATHS_IN_A_ROW = 3
+WORKER_DEATHS_WINDOW_S = 60.0
 
 
 # -- chain state -----------------------------------------------------------------------------------------
@@ -293,15 +307,71 @@ class Controller:
         self._mv_n: np.ndarray = np.zeros(0, int)   # joint moves' proposals and acceptances, by move
         self._mv_k: np.ndarray = np.zeros(0, int)
         self._conv_cache: tuple | None = None
+        self._deaths: list[float] = []     # when workers died since the last completed round
+        self._restarts = 0                 # pools made anew after a worker died
+        self._workers_note: dict | None = None   # the last worker death: {"text", "sweep", "restarted", ...}
+        self._want_running = False         # start() called and no stop() since
+        self._pools_made = 0
 
     # -- workers ------------------------------------------------------------------------------------------
     def _start_pool(self):
-        """The executor (a LocalPool is forked now, from this thread, before any runner thread)."""
+        """The executor. The first LocalPool is forked, from the constructor's thread, before
+        any runner or server thread exists; a later one (after a worker died) is spawned: by
+        then a fork would copy the viewer's sockets and whatever locks other threads hold."""
         if self._executor is None:
             from galileo.runner import LocalPool
 
-            self._executor = LocalPool(self.workers)
+            self._executor = LocalPool(self.workers, context="spawn" if self._pools_made else "fork")
+            self._pools_made += 1
         return self._executor
+
+    def _worker_died(self, error: Exception, tasks: list) -> bool:
+        """A worker of the controller's own pool died during a round (killed, out of memory):
+        the broken pool is shut down and the round's results, none of which were committed, are
+        dropped. Records a "worker_died" event, says so on stderr, and returns True to run the
+        round again on a new pool (the chains' committed state and random streams are where they
+        were, so the chains are those of a run in which no worker died), or, after
+        WORKER_DEATHS_IN_A_ROW deaths with no round completed between them within
+        WORKER_DEATHS_WINDOW_S, pauses every running chain and returns False."""
+        old, self._executor = self._executor, None   # (None: the new pool's workers failed to start)
+        if old is not None:
+            try:
+                old.shutdown()
+            except Exception:  # noqa: BLE001 - a broken pool's shutdown must not hide the death
+                log.exception("shutting a broken worker pool down failed")
+        dead = old.dead_workers() if hasattr(old, "dead_workers") else []
+        now = time.monotonic()
+        sweep = max((int(t.sweep) for t in tasks), default=0) + 1   # the sweep the running chains were on
+        who = ", ".join(f"pid {w['pid']} {w['how']}" for w in dead) or " ".join(str(error).split())
+        with self._lock:
+            self._deaths = [t for t in self._deaths if now - t <= WORKER_DEATHS_WINDOW_S] + [now]
+            give_up = len(self._deaths) >= WORKER_DEATHS_IN_A_ROW
+            detail = {"sweep": sweep, "workers": dead, "message": " ".join(str(error).split()),
+                      "in_a_row": len(self._deaths)}
+            if give_up:
+                ids = [c for c, ch in sorted(self._chains.items()) if not ch.removed and not ch.paused]
+                for c in ids:
+                    self._chains[c].paused = True
+                    self._chains[c].held = False
+                text = (f"inference workers died {len(self._deaths)} times in a row within "
+                        f"{WORKER_DEATHS_WINDOW_S:g} s (last during sweep {sweep}: {who}): every chain is paused; "
+                        "Resume all starts a new pool")
+                detail.update(restarted=False, restarts=self._restarts, outcome=text)
+                self._event("worker_died", detail)
+                self._event("pause", {"chains": ids, "reason": "inference workers keep dying"})
+            else:
+                self._restarts += 1
+                text = (f"an inference worker died during sweep {sweep} ({who}); the worker pool was restarted "
+                        f"({self._restarts} time{'s' if self._restarts > 1 else ''}) and sweep {sweep} runs again")
+                detail.update(restarted=True, restarts=self._restarts)
+                self._event("worker_died", detail)
+            self._workers_note = {"text": text, "sweep": sweep, "restarted": not give_up, "restarts": self._restarts,
+                                  "gave_up": give_up, "time": time.time()}
+            if give_up:
+                self._deaths = []
+        print(f"galileo: {'error' if give_up else 'warning'}: {text}", file=sys.stderr, flush=True)
+        log.info("%s", text)
+        return not give_up
 
     # -- rounds ----------------------------------------------------------------------------------------------
     def _round(self) -> bool:
@@ -319,20 +389,31 @@ class Controller:
                                    copy.deepcopy(ch.rng_state), 1, bounds, ch.proposal, s.noise, True,
                                    moves=ch.moves, adapt_until=self._adapt_until) for ch in run]
                 self._in_flight = True
-            try:
-                results = list(self._start_pool().map(run_task, tasks))
-            except BaseException as e:
-                with self._lock:
-                    self._in_flight = False
-                    self._apply_pending()
-                if isinstance(e, WorkerDied) and self._own_executor:
-                    self._executor = None   # a fresh pool next round
-                if isinstance(e, GalileoError):
+            while True:
+                try:
+                    results = list(self._start_pool().map(run_task, tasks))
+                    break
+                except BaseException as e:
+                    if isinstance(e, WorkerDied) and self._own_executor:
+                        again = self._worker_died(e, tasks)
+                        stopping = self._stop_evt.is_set() and threading.current_thread() is self._thread
+                        if again and not stopping:
+                            continue   # the same tasks on a new pool: nothing of this round was committed
+                        with self._lock:   # paused (or stopping): the round is not run, nothing changed
+                            self._in_flight = False
+                            self._apply_pending()
+                            self._cond.notify_all()
+                        return False
+                    with self._lock:
+                        self._in_flight = False
+                        self._apply_pending()
+                    if isinstance(e, GalileoError):
+                        raise
+                    if isinstance(e, Exception):
+                        raise GalileoError(f"an inference worker failed: {type(e).__name__}: {e}") from e
                     raise
-                if isinstance(e, Exception):
-                    raise GalileoError(f"an inference worker failed: {type(e).__name__}: {e}") from e
-                raise
             with self._lock:
+                self._deaths = []
                 out, held = [], []
                 noise = {t.chain: t.noise for t in tasks}
                 for r in results:
@@ -433,6 +514,7 @@ class Controller:
                 return
             self._error = None
             self._stop_evt.clear()
+            self._want_running = True
             self._start_pool()
             self._thread = threading.Thread(target=self._loop, name="galileo-controller", daemon=True)
             self._thread.start()
@@ -458,6 +540,7 @@ class Controller:
     def stop(self) -> None:
         """Stop the background thread (the round in flight finishes) and save the session."""
         t = self._thread
+        self._want_running = False
         if t is not None and t is threading.current_thread():   # from a listener: just ask
             self._stop_evt.set()
             return
@@ -673,7 +756,11 @@ class Controller:
         self._set_paused(chain, True)
 
     def resume(self, chain: int | None = None) -> None:
+        """Resume one chain (or all). When the background thread was started and has stopped on
+        an error, it starts again (a new worker pool if the old one is gone)."""
         self._set_paused(chain, False)
+        if self._want_running and not self.running and not self._closed:
+            self.start()
 
     def add_chains(self, n: int = 1) -> list[int]:
         """New chains, started like the batch runner's chains with those indices (under the
@@ -917,7 +1004,9 @@ class Controller:
         "derived": the scenario's derived quantities' posterior summaries on the same kept
         draws (as `InferenceResult.derived_posterior`), "settings", "map": {"chain", "index",
         "values", "loglik", "noise"} | None, "map_note" (why no MAP: pending after a sigma
-        edit) | None, "error": message | None}."""
+        edit) | None, "error": why the background thread stopped | None, "workers": {"restarts" (pools
+        made anew after a worker died), "last_death": {"text", "sweep", "restarted", "restarts",
+        "gave_up" (every chain paused instead), "time"} | None}}."""
         with self._lock:
             chains = {}
             for c, ch in sorted(self._chains.items()):
@@ -954,7 +1043,8 @@ class Controller:
                    "settings": self._settings.to_json(),
                    "map": None if best is None else {"chain": best[0], "index": best[1], "values": best[2],
                                                      "loglik": best[3], "noise": float(self._settings.noise)},
-                   "map_note": self.map_note(), "error": self._error}
+                   "map_note": self.map_note(), "error": self._error,
+                   "workers": {"restarts": self._restarts, "last_death": copy.deepcopy(self._workers_note)}}
         if kept is not None:   # outside the lock: arviz takes some milliseconds
             conv = self._convergence_of(kept, rhat_target, self._min_ess)
             conv["kept_draws"] = int(sum(len(k) for k in kept))
@@ -1056,7 +1146,9 @@ class Controller:
             if not 0 <= n_events <= len(events):
                 raise ValueError(f"{n_events} events committed but events.json holds {len(events)}")
             chain_docs = list(doc["chains"])
-            seed, rounds = int(doc["seed"]), int(doc["rounds"])
+            if not chain_docs:
+                raise ValueError("no chains listed")
+            seed, rounds = _whole(doc["seed"], "seed", 0), _whole(doc["rounds"], "rounds", 0)
             next_id, steps = int(doc["next_id"]), int(doc["physics_steps"])
             adapt_until = _whole(doc.get("adapt_until", 0), "adapt_until", 0)
             target = doc.get("target_sweeps", sweeps)

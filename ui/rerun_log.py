@@ -75,9 +75,7 @@ LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "::1"}
 # a reopened session's convergence history: R-hat recomputed at most at this many sweeps
 HISTORY_CHECKS = 40
 
-# web viewer HTTP servers started by this process (rerun offers no way to stop one)
-_web_ports: set[int] = set()
-_web_lock = threading.Lock()
+WEB_VIEWER_START_S = 30.0   # how long the web viewer's process may take to listen
 
 
 def _part(name: str) -> str:
@@ -120,13 +118,116 @@ def _check_reachable(url: str, timeout_s: float = 2.0) -> None:
         raise RuntimeError(f"no rerun viewer or server reachable at {url}: {e}") from None
 
 
-def _check_port_free(host: str, port: int) -> None:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+def _check_port_free(host: str, port: int, what: str = "rerun's gRPC") -> None:
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             s.bind((host, port))
         except OSError as e:
-            raise RuntimeError(f"cannot serve rerun's gRPC on {host}:{port}: {e}") from None
+            raise RuntimeError(f"cannot serve {what} on {host}:{port}: {e}") from None
+
+
+def _bind_address(host: str) -> str:
+    """The IP address `host` names (rerun's --bind takes an address, not a name)."""
+    if host in ("", "0.0.0.0"):
+        return "0.0.0.0"
+    try:
+        return socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)[0][4][0]
+    except OSError as e:
+        raise RuntimeError(f"cannot serve rerun's web viewer on {host!r}: {e}") from None
+
+
+def _rerun_binary() -> str:
+    """The rerun viewer/server program the rerun-sdk wheel ships (rerun_cli/rerun)."""
+    import shutil
+
+    try:
+        import rerun_cli
+
+        path = Path(rerun_cli.__file__).parent / "rerun"
+        if path.is_file():
+            return str(path)
+    except ImportError:
+        pass
+    found = shutil.which("rerun")
+    if found is None:
+        raise RuntimeError("cannot serve rerun's web viewer: the rerun program is not installed (pip install rerun-sdk)")
+    return found
+
+
+def _parent_death_signal():
+    """A function for a child process to call between fork and exec so that it gets SIGTERM
+    when the app ends, however it ends (Linux; None elsewhere). prctl is looked up here, in
+    the parent: the child, a copy of a threaded process, must take no lock (dlopen's, the
+    import lock) another thread may have held. The thread that starts the child counts as its
+    parent: in the app, the main thread."""
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        import ctypes
+
+        prctl = ctypes.CDLL("libc.so.6", use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    return lambda: prctl(1, 15)   # PR_SET_PDEATHSIG, SIGTERM
+
+
+class _WebViewer:
+    """Rerun's web viewer (HTML, JS, Wasm) served by the `rerun` program in a child process,
+    bound to `host` (`rerun --serve-web --bind HOST --web-viewer-port PORT URL`): the SDK's
+    own `serve_web_viewer` listens on every interface and can never be stopped (rerun 0.41).
+    The page connects to `grpc_url`, the logger's own gRPC server."""
+
+    def __init__(self, host: str, port: int, grpc_url: str):
+        import subprocess
+        import tempfile
+        import time
+
+        bind = _bind_address(host)
+        _check_port_free(bind, port, "rerun's web viewer")
+        self._log = tempfile.TemporaryFile()
+        cmd = [_rerun_binary(), "--serve-web", "--bind", bind, "--web-viewer-port", str(int(port)), grpc_url]
+        try:
+            self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=self._log, stderr=subprocess.STDOUT,
+                                         preexec_fn=_parent_death_signal())
+        except OSError as e:
+            self._log.close()
+            raise RuntimeError(f"cannot start rerun's web viewer ({cmd[0]}): {e}") from None
+        probe = {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(bind, bind)
+        deadline = time.monotonic() + WEB_VIEWER_START_S
+        while True:
+            if self.proc.poll() is not None:
+                tail = self._tail()
+                self._log.close()
+                raise RuntimeError(f"rerun's web viewer did not start on {bind}:{port}: {tail}")
+            try:
+                socket.create_connection((probe, port), timeout=1.0).close()
+                return
+            except OSError:
+                if time.monotonic() > deadline:
+                    tail = self._tail()
+                    self.stop()
+                    raise RuntimeError(f"rerun's web viewer did not listen on {bind}:{port} within "
+                                       f"{WEB_VIEWER_START_S:g} s: {tail}") from None
+                time.sleep(0.1)
+
+    def _tail(self) -> str:
+        self._log.seek(0)
+        lines = [ln for ln in self._log.read().decode(errors="replace").splitlines() if ln.strip()]
+        return " ".join(" ".join(lines[-3:]).split())[-400:] or "(no output)"
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=5)
+            except Exception:  # noqa: BLE001 - subprocess.TimeoutExpired
+                self.proc.kill()
+                self.proc.wait()
+        self._log.close()
 
 
 class RerunLogger:
@@ -134,8 +235,9 @@ class RerunLogger:
 
     - "off": every method is a no-op, nothing is written;
     - "save": write `session_dir/session.rrd`;
-    - "web": save too, and host a gRPC server (bound to `host`) plus rerun's web viewer
-      (`web_port`); `web_url` is the page that opens this recording;
+    - "web": save too, and host a gRPC server plus rerun's web viewer (`web_port`), both
+      bound to `host` only (the viewer is served by the `rerun` program in a child process,
+      stopped by `close`); `web_url` is the page that opens this recording;
     - "connect": stream to a running viewer/server at `connect_url` (and save too when a
       `session_dir` is given).
 
@@ -161,6 +263,7 @@ class RerunLogger:
         self._last_convergence: tuple | None = None   # what log_convergence logged last
         self._closed = False
         self._before_close: list = []             # callables run first by close() (a feed's thread)
+        self._web: _WebViewer | None = None
         # frames as JPEG images, not the H.264 asset: a browser opening the web viewer from
         # another machine over http has no WebCodecs (secure contexts only), so no decoder
         self.video_as_images = mode == "web" and not _is_loopback(host)
@@ -195,18 +298,14 @@ class RerunLogger:
         if session_dir is not None:
             self.stream.send_recording_name(Path(session_dir).name)
         if mode == "web":
-            with _web_lock:
-                if web_port not in _web_ports:
-                    # the web viewer's HTTP server: rerun binds it on all interfaces (no host
-                    # option in 0.41) and it lives as long as the process
-                    try:
-                        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=self.grpc_url)
-                    except RuntimeError as e:
-                        self.stream.disconnect()
-                        self.stream = None
-                        raise RuntimeError(f"cannot serve rerun's web viewer on port {web_port}: {e}") from None
-                    _web_ports.add(web_port)
+            try:
+                self._web = _WebViewer(host, web_port, self.grpc_url)
+            except RuntimeError:
+                self.stream.disconnect()
+                self.stream = None
+                raise
             page_host = "127.0.0.1" if host in ("0.0.0.0", "") else host
+            page_host = f"[{page_host}]" if ":" in page_host else page_host   # an IPv6 address
             self.web_url = (f"http://{page_host}:{web_port}/?url="
                             f"{urllib.parse.quote(self.grpc_url, safe='')}")
 
@@ -564,9 +663,8 @@ class RerunLogger:
             log.warning("rerun flush failed: %s", e)
 
     def close(self) -> None:
-        """Flush and close every sink (finishes the .rrd; in mode "web" stops the gRPC server,
-        the web viewer page stays up but has nothing to show). Idempotent, never raises
-        for a sink that went away."""
+        """Flush and close every sink (finishes the .rrd; in mode "web" stops the gRPC server
+        and the web viewer's process). Idempotent, never raises for a sink that went away."""
         if not self.enabled:
             return
         for fn in list(self._before_close):
@@ -580,6 +678,8 @@ class RerunLogger:
             self.stream.disconnect()
         except RuntimeError as e:
             log.warning("rerun disconnect failed: %s", e)
+        if self._web is not None:
+            self._web.stop()
 
     def __enter__(self) -> "RerunLogger":
         return self

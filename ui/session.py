@@ -22,11 +22,13 @@ is the commit point. It carries the counts of samples, proposals and events (the
 the history only grow, so the files written before it hold at least as much) and a copy of the
 settings, so a crash between two files still loads as the last complete state.
 
-Reading: a missing or damaged file raises `GalileoError` with one line naming the file.
+Reading: a missing or damaged file raises `GalileoError` with one line naming the file. A save
+killed before its rename leaves a `.<file>.<random>.tmp` behind; opening the session removes it.
 """
 from __future__ import annotations
 
 import io
+import logging
 import math
 import re
 import time
@@ -38,6 +40,8 @@ import numpy as np
 
 from galileo.errors import GalileoError
 from galileo.jsonio import atomic_write_bytes, read_json, write_json
+
+log = logging.getLogger(__name__)
 
 SESSION_VERSION = 1
 SCENE_FILE = "scene.json"
@@ -215,13 +219,42 @@ def reading(path: Path) -> Iterator[None]:
         raise GalileoError(f"session file {path} is damaged: {type(e).__name__}: {_one_line(e)}") from None
 
 
+def stale_temp_files(folder: Path) -> list[Path]:
+    """The temporary files an interrupted save left in a session folder: `.<name>.<random>.tmp`
+    of the session's own files (what `galileo.jsonio.atomic_write_bytes` writes before it
+    renames one into place), nothing else."""
+    names = "|".join(re.escape(n) for n in FILES)
+    pattern = re.compile(rf"\.(?:{names})\.[A-Za-z0-9_]+\.tmp")
+    return sorted(p for p in folder.iterdir() if pattern.fullmatch(p.name) and p.is_file() and not p.is_symlink())
+
+
+def remove_stale_temp_files(folder: Path) -> list[Path]:
+    """Remove `stale_temp_files` (a kill during a save leaves one behind: the save it belonged
+    to never happened, and the files it would have replaced are whole). Returns those removed."""
+    gone = []
+    for p in stale_temp_files(folder):
+        try:
+            p.unlink()
+            gone.append(p)
+        except FileNotFoundError:
+            pass
+        except OSError as e:   # a read-only folder still opens; the file just stays
+            log.warning("cannot remove %s: %s", p, e)
+    if gone:
+        log.info("removed %d temporary file(s) an interrupted save left in %s", len(gone), folder)
+    return gone
+
+
 def check_folder(folder: str | Path) -> Path:
+    """The session folder, every file there (GalileoError naming what is missing); the
+    temporary files an interrupted save left are removed."""
     folder = Path(folder)
     if not folder.is_dir():
         raise GalileoError(f"session folder not found: {folder}")
     for name in FILES:
         if not (folder / name).is_file():
             raise GalileoError(f"session file missing: {folder / name}")
+    remove_stale_temp_files(folder)
     return folder
 
 

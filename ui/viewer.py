@@ -45,7 +45,7 @@ from galileo.results import burn_in
 log = logging.getLogger(__name__)
 
 OBJECT_COLORS = [(220, 90, 50), (70, 130, 220)]
-NOT_EDITS = ("init", "pause", "resume", "run_until", "until_check")   # change no chain's target or state
+NOT_EDITS = ("init", "pause", "resume", "run_until", "until_check", "worker_died")   # change no chain's target or state
 CONVERGED_COLOR = "#2b8a3e"     # a latent whose R-hat and ESS hold
 RHAT_COLOR = "#c92a2a"          # R-hat above the target, or not computable yet
 ESS_COLOR = "#e8590c"           # R-hat holds, too few effective draws
@@ -918,7 +918,8 @@ class Viewer:
         target = st.get("target_sweeps") or self.target_sweeps
         until = st.get("until")
         total = until["max_sweeps"] if until else target     # run until converged: towards the budget
-        running = sum(1 for c in st["chains"].values() if c.get("running"))
+        # (a background thread stopped on an error runs nothing, whatever the chains' state)
+        running = 0 if st.get("error") else sum(1 for c in st["chains"].values() if c.get("running"))
         done = sum(min(c["sweeps"], total) for c in st["chains"].values())
         frac = done / max(total * max(len(ids), 1), 1)
         reached = bool(st["chains"]) and all(c["sweeps"] >= target for c in st["chains"].values())
@@ -955,7 +956,11 @@ class Viewer:
                           else f", widths adapted in warm-up (sweeps 1-{mv['warmup']}, dropped)")
         if macc:
             moves_txt += f"; joint moves' acceptance: {macc}"
-        self.status_text.content = (f"{running} running / {len(ids)} chains, {st.get('sweeps', 0)} sweeps: {state}  \n"
+        # a worker that died (the pool restarted, or every chain paused), a thread stopped on an error
+        death = (st.get("workers") or {}).get("last_death")
+        alert = "".join(f"**{t}**  \n" for t in (death and death["text"], st.get("error") and
+                                                  f"inference stopped: {st['error']} (Resume all to retry)") if t)
+        self.status_text.content = (f"{alert}{running} running / {len(ids)} chains, {st.get('sweeps', 0)} sweeps: {state}  \n"
                                     f"{moves_txt}  \nacceptance: {acc or '-'}  \n"
                                     f"convergence ({conv.get('kept_draws', 0)} kept draws): {conv['summary']}  \n"
                                     f"{map_txt}")
