@@ -148,6 +148,20 @@ def screenshot(page, **kw) -> np.ndarray:
     return cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[..., ::-1].astype(int)
 
 
+def settled(page, timeout_s: float = 30.0) -> np.ndarray:
+    """A screenshot once the page has stopped changing (two in a row alike: software WebGL on a
+    busy machine takes up to a second a frame, so a fixed wait is not enough)."""
+    last = screenshot(page)
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        time.sleep(0.5)
+        shot = screenshot(page)
+        if (np.abs(shot - last).sum(axis=2) > 30).mean() < 1e-4:
+            return shot
+        last = shot
+    return last
+
+
 def test_camera_view_is_letterboxed_exact_and_per_browser(viewer, browser):
     """Defect 6 in the browser, a window shaped 1600 x 1000 (the video is 4:3): the camera view puts
     black bars beside the frame (not a stretched frame); the simulated objects land where the
@@ -157,28 +171,24 @@ def test_camera_view_is_letterboxed_exact_and_per_browser(viewer, browser):
 
     a, b = open_page(browser, viewer, CAMERA_WINDOW), open_page(browser, viewer, CAMERA_WINDOW)
     try:
-        time.sleep(2.0)      # both drawn
-        b_before = screenshot(b)
+        b_before = settled(b)
         a.get_by_role("button", name="Camera view").click()
         assert wait_until(lambda: len(viewer._camera_clients) == 1, 10)
         client = viewer.server.get_clients()[next(iter(viewer._camera_clients))]
-        time.sleep(2.5)
-        shot = screenshot(a)
+        shot = settled(a)
         # the bars: the sky beside the frame is black (a stretched frame put the grey wall there)
         bar = shot[20:160, 2:12]          # (left of the "software WebGL" notice)
         assert bar.max() < 40, f"no black bar beside the frame: {bar.max()}"
         # the other browser is as it was
-        b_after = screenshot(b)
+        b_after = settled(b)
         scene_part = (slice(75, None), slice(0, int(0.55 * CAMERA_WINDOW["width"])))   # not the panel, not the toast
         changed = np.abs(b_after - b_before)[scene_part].sum(axis=2) > 30
         assert changed.mean() < 0.01, f"{changed.mean():.1%} of the other browser's scene changed"
         # the simulated objects where the video camera puts them: draw them opaque, then invisible
         viewer.opacity_slider.value = 1.0
-        time.sleep(1.5)
-        opaque = screenshot(a)
+        opaque = settled(a)
         viewer.opacity_slider.value = 0.0
-        time.sleep(1.5)
-        clear = screenshot(a)
+        clear = settled(a)
         viewer.opacity_slider.value = 1.0
         cam = viewer.camera
         h, w = CAMERA_WINDOW["height"], CAMERA_WINDOW["width"]
