@@ -298,3 +298,35 @@ def test_cylinder_along_fall_line_does_not_roll_sideways():
     assert np.abs(traj.position_m[0, :, 1]).max() < 1e-3
     # and it still slides (tan 10 deg = 0.176 > 0.165)
     assert along_fall_line(scene, traj)[-1] > 0.3
+
+
+def test_motion_from_two_threads_equals_motion_from_one(demo_frozen):
+    """The app simulates in two threads of one process (the viewer re-simulating a scrubbed
+    sample, the rerun feed the MAP) on the process's single Bullet client: each thread's
+    motion must be the one it gets alone (without `client_lock` they step each other's world
+    and both trajectories come out wrong)."""
+    import threading
+
+    from galileo import registry
+
+    scene, tracks, truth = demo_frozen
+    positions = [truth, truth * np.array([1.6, 0.5, 0.7, 1.3])]
+    lik = [registry.of(scene).likelihood(scene, tracks, 0.05) for _ in positions]
+    alone = [lik[i].motion(p).position_m for i, p in enumerate(positions)]
+    got: list[list] = [[], []]
+    start = threading.Barrier(2)
+
+    def run(i: int) -> None:
+        start.wait()
+        for _ in range(15):
+            got[i].append(lik[i].motion(positions[i]).position_m)
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    for i in range(2):
+        assert len(got[i]) == 15
+        for pos in got[i]:
+            np.testing.assert_array_equal(pos, alone[i])

@@ -1,6 +1,6 @@
 """The only door to pybullet: the module imported without its "pybullet build time" banner
 (C-level stderr), the process's single DIRECT client (a forked child connects its own,
-never its parent's), a per-process scratch folder for mesh files, and collision and
+never its parent's) and the lock its threads share it under, a per-process scratch folder for mesh files, and collision and
 visual shapes made from `galileo.shapes` shapes."""
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import os
 import shutil
 import sys
 import tempfile
+import threading
 from pathlib import Path
 from typing import Any, Callable
 
@@ -46,6 +47,12 @@ pb = _import_quietly()
 # -- the process's single pybullet client -----------------------------------------------
 
 _client: int | None = None
+# The client is one per process and Bullet is not thread-safe: a thread that simulates in a
+# process where others may too (the app's viewer re-simulating a scrubbed sample while its
+# rerun feed simulates the MAP) holds this lock for the whole simulation, from the world's
+# restore to the last step. Two threads stepping one world at once corrupt each other's
+# trajectories. (The samplers' worker processes have a client of their own each.)
+client_lock = threading.RLock()
 _client_pid: int | None = None
 _world = None          # the world built last in this process's client (see `cached_world`)
 _mesh_dir: Path | None = None

@@ -91,7 +91,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...sim.bullet import pb
+from ...sim.bullet import client_lock, pb
 from ...errors import GalileoError
 from .physics import Simulator
 from .scene import Scene
@@ -548,6 +548,8 @@ class VelocityLikelihood:
     # -- the motion scored (for the viewer, rerun and tests) ------------------------------------
     def motion(self, position) -> Trajectory:
         """The simulated motion exactly as the likelihood scores it (both phases, the rest
-        rule, prefix reuse): per frame, positions, velocities and orientations."""
-        _, _, (pos, vel, orn) = self._evaluate(self.values_of(position), -math.inf, record=True, reuse=False)
+        rule, prefix reuse): per frame, positions, velocities and orientations. Thread-safe
+        (the process's Bullet client is held for the simulation)."""
+        with client_lock:
+            _, _, (pos, vel, orn) = self._evaluate(self.values_of(position), -math.inf, record=True, reuse=False)
         return Trajectory(self.fps, [o.name for o in self.scene.objects], pos, vel, orn)

@@ -40,6 +40,7 @@ import numpy as np
 
 from ...datatypes import Tracks, Trajectory
 from ...errors import GalileoError
+from ...sim.bullet import client_lock
 from .physics import Simulator
 from .scene import LATENT_NAMES, SplashScene
 
@@ -192,9 +193,11 @@ class SplashLikelihood:
         return tuple(a[idx] for a in kept)
 
     def motion(self, position) -> Trajectory:
-        """The simulated motion as scored: video frames 0..F-1 (physics steps t + f spf)."""
+        """The simulated motion as scored: video frames 0..F-1 (physics steps t + f spf).
+        Thread-safe (the process's Bullet client is held for the simulation)."""
         values = self.values_of(position)
-        _, _, rec = self._evaluate(values, -math.inf, record=True)
+        with client_lock:
+            _, _, rec = self._evaluate(values, -math.inf, record=True)
         if rec is None:
             raise GalileoError("no object of this volume shows that area from below and fits the tank")
         pos, vel, orn = rec
