@@ -216,7 +216,12 @@ def run(args) -> dict:
         viewer = Viewer(ctrl, ctrl.likelihood_scene, tracks, video, port=port, target_sweeps=args.sweeps)
         stack.callback(viewer.close)
         logger.log_selected(viewer.traj)
-        if args.log_selected:
+        if args.log_selected and args.flush_selected:   # what-if: rerun flushed after each selection
+            def log_and_flush(traj, chain, index):
+                logger.log_selected(traj, chain, index)
+                logger.flush()
+            viewer.add_selection_listener(log_and_flush)
+        elif args.log_selected:
             viewer.add_selection_listener(logger.log_selected)
         if args.tracemalloc:
             tracemalloc.start(args.frames)
@@ -296,7 +301,40 @@ def sample_row(t_s: float, viewer, ctrl, scrub, worker_pids: list[int], count_ob
             "resimulations": viewer.resimulations, "rounds": st["rounds"], "sweeps": st["sweeps"],
             "running": sum(1 for c in st["chains"].values() if c["running"]),
             "threads": threading.active_count(), "viser": viser_buffers(viewer),
-            "malloc_mb": malloc_mb(), "gc_objects": len(gc.get_objects()) if count_objects else None}
+            "malloc_mb": malloc_mb(), "maps_mb": maps_mb(),
+            "gc_objects": len(gc.get_objects()) if count_objects else None}
+
+
+def maps_mb() -> dict | None:
+    """This process's resident memory by kind of mapping (/proc/self/smaps): "heap" (glibc's
+    main arena, brk), "anon" (anonymous mappings: glibc's thread arenas and large blocks,
+    Rust's allocator, numpy's large arrays, thread stacks), "file" (code and mapped files); and
+    "anon_big": the resident MB of each anonymous mapping of 1 MB or more, by its start address
+    (which one grows names the allocator that holds the growth)."""
+    try:
+        text = Path("/proc/self/smaps").read_text()
+    except OSError:
+        return None
+    out = {"heap": 0.0, "anon": 0.0, "file": 0.0, "stack": 0.0}
+    big: dict[str, float] = {}
+    kind, start = "anon", ""
+    for line in text.splitlines():
+        head = line.split()
+        if not head:
+            continue
+        if "-" in head[0] and len(head) >= 5 and not head[0].endswith(":"):
+            start = head[0].split("-")[0]
+            path = head[5] if len(head) > 5 else ""
+            kind = ("heap" if path == "[heap]" else "stack" if path.startswith("[stack") else
+                    "anon" if not path or path.startswith("[anon") else "file")
+        elif head[0] == "Rss:":
+            mb = int(head[1]) / 1024
+            out[kind] += mb
+            if kind == "anon" and mb >= 1.0:
+                big[start] = round(mb, 1)
+    out = {k: round(v, 1) for k, v in out.items()}
+    out["anon_big"] = big
+    return out
 
 
 def summarize(result: dict, samples: list[dict], args) -> None:
@@ -392,6 +430,8 @@ def main() -> int:
     p.add_argument("--rerun", choices=["off", "save"], default="save")
     p.add_argument("--no-log-selected", dest="log_selected", action="store_false",
                    help="do not log each selected sample to rerun (the app does)")
+    p.add_argument("--flush-selected", action="store_true",
+                   help="what-if: flush the rerun stream after logging each selected sample (the app does not)")
     p.add_argument("--no-tracemalloc", dest="tracemalloc", action="store_false")
     p.add_argument("--trim", action="store_true",
                    help="malloc_trim after each snapshot (hands its freed memory back; RSS then climbs back)")

@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import bisect
 import logging
+import os
 import socket
 import threading
 import urllib.parse
@@ -51,7 +52,12 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-import rerun as rr
+
+# session.rrd is written without rerun's footer (below, `write_footer=False`), and rerun warns
+# about that on stderr each time a file sink opens; read by rerun's Rust logging when the SDK
+# is first imported (a RUST_LOG the user set is kept)
+os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error")
+import rerun as rr  # noqa: E402
 import rerun.blueprint as rrb
 
 log = logging.getLogger(__name__)
@@ -287,7 +293,10 @@ class RerunLogger:
             session_dir = Path(session_dir)
             session_dir.mkdir(parents=True, exist_ok=True)
             self.rrd_path = session_dir / RRD_NAME
-            sinks.append(rr.FileSink(self.rrd_path))
+            # No footer: to write one, rerun keeps every chunk's metadata in memory until the file
+            # closes (rerun issue 12623), which grew the app by ~2.5 MB per 1,000 scrubs, without
+            # bound. The file is a complete recording without it (`rerun rrd optimize` adds one).
+            sinks.append(rr.FileSink(self.rrd_path, write_footer=False))
         if mode == "web":
             server = rr.GrpcServerSink(host, grpc_port)   # rr.serve_grpc, but bindable and teed with the file
             sinks.append(server)
