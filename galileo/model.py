@@ -36,7 +36,8 @@ class Likelihood(Protocol):
     (and exact speed-ups on) it may stop as soon as it knows the value is below it and
     return an upper bound below the threshold. `steps` counts the physics steps taken.
     `motion(position)` is the simulated motion exactly as it was scored (same phases,
-    same rest rule), for the viewer, rerun and tests."""
+    same rest rule), for the viewer, rerun and tests. Both are thread-safe: a process has one
+    Bullet client, and they hold `galileo.sim.bullet.client_lock` while they simulate."""
     names: tuple[str, ...]
     steps: int
 

@@ -300,33 +300,34 @@ def test_cylinder_along_fall_line_does_not_roll_sideways():
     assert along_fall_line(scene, traj)[-1] > 0.3
 
 
-def test_motion_from_two_threads_equals_motion_from_one(demo_frozen):
-    """The app simulates in two threads of one process (the viewer re-simulating a scrubbed
-    sample, the rerun feed the MAP) on the process's single Bullet client: each thread's
-    motion must be the one it gets alone (without `client_lock` they step each other's world
-    and both trajectories come out wrong)."""
+def test_simulations_from_two_threads_equal_each_alone(demo_frozen):
+    """The app simulates in several threads of one process on its single Bullet client: the
+    viewer re-simulating a scrubbed sample, the rerun feed the MAP, and with `--workers 1` the
+    chains themselves. Each thread's motion and log-likelihood must be what it gets alone
+    (without `client_lock` they step each other's world and come out wrong)."""
     import threading
 
     from galileo import registry
 
     scene, tracks, truth = demo_frozen
-    positions = [truth, truth * np.array([1.6, 0.5, 0.7, 1.3])]
+    positions = [truth, truth * np.array([1.6, 0.5, 0.7, 1.3]), truth * np.array([0.8, 1.2, 1.3, 0.9])]
     lik = [registry.of(scene).likelihood(scene, tracks, 0.05) for _ in positions]
-    alone = [lik[i].motion(p).position_m for i, p in enumerate(positions)]
-    got: list[list] = [[], []]
-    start = threading.Barrier(2)
+    alone = [lik[0].motion(positions[0]).position_m, lik[1].motion(positions[1]).position_m,
+             lik[2](positions[2])[0]]
+    got: list[list] = [[], [], []]
+    start = threading.Barrier(3)
 
     def run(i: int) -> None:
         start.wait()
         for _ in range(15):
-            got[i].append(lik[i].motion(positions[i]).position_m)
+            got[i].append(lik[i].motion(positions[i]).position_m if i < 2 else lik[i](positions[i])[0])
 
-    threads = [threading.Thread(target=run, args=(i,)) for i in range(2)]
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(3)]
     for t in threads:
         t.start()
     for t in threads:
         t.join(120)
-    for i in range(2):
+    for i in range(3):
         assert len(got[i]) == 15
-        for pos in got[i]:
-            np.testing.assert_array_equal(pos, alone[i])
+        for value in got[i]:
+            np.testing.assert_array_equal(value, alone[i])

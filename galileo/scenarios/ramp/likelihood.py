@@ -330,11 +330,13 @@ class VelocityLikelihood:
     # -- the target --------------------------------------------------------------------------
     def __call__(self, position, threshold: float | None = None):
         """(log-likelihood, stopped_early). With a threshold and speed-ups, may stop early and
-        return an upper bound below the threshold."""
+        return an upper bound below the threshold. Thread-safe, as `motion` (the app's
+        `--workers 1` runs chains in its own process, beside the viewer's re-simulations)."""
         values = self.values_of(position)
         noise = self.noise_of(values)
         limit = -math.inf if (threshold is None or not self.speedups) else threshold
-        total, early, _ = self._evaluate(values, limit, noise=noise)
+        with client_lock:
+            total, early, _ = self._evaluate(values, limit, noise=noise)
         return noise.log_norm + total, early
 
     def _evaluate(self, values: dict, limit: float, record: bool = False, reuse: bool = True,

@@ -124,10 +124,11 @@ class SplashLikelihood:
         return (dx * dx + dz * dz) * self._hx + (du * du + dw * dw) * self._hv
 
     def __call__(self, position, threshold: float | None = None):
-        """(log-likelihood, stopped_early); see the module docstring."""
+        """(log-likelihood, stopped_early); see the module docstring. Thread-safe, as `motion`."""
         values = self.values_of(position)
         limit = -math.inf if (threshold is None or not self.speedups) else threshold
-        total, early, _ = self._evaluate(values, limit)
+        with client_lock:
+            total, early, _ = self._evaluate(values, limit)
         return self.log_norm + total, early
 
     def _evaluate(self, values: dict, limit: float, record: bool = False):
