@@ -21,8 +21,10 @@ a client message and an update broadcast to every page.
 Every `--sample-every` s: this process's resident memory (the app server; the chain workers
 and Chromium are other processes: the workers' memory is noted apart), Python's traced
 memory and tracemalloc's own (tracemalloc keeps 5 frames a trace), glibc's heap in use and
-free (mallinfo2; rerun's Rust code has its own allocator, mimalloc, outside it), viser's
-buffered messages. A tracemalloc snapshot at the end of the warm-up and one after the last
+free (mallinfo2; rerun's Rust code has its own allocator, mimalloc, outside it), resident
+memory by kind of mapping (/proc/self/smaps: glibc's main heap, anonymous mappings, files; and
+each anonymous mapping of 1 MB or more, so that the one that grows names its allocator:
+mimalloc reserves 1 GiB arenas), viser's buffered messages. A tracemalloc snapshot at the end of the warm-up and one after the last
 sample (more with `--snap-every-min`), compared: the top growing allocation sites. A
 snapshot costs tens of MB for a moment (a step in RSS at the warm-up's, which the server
 then reuses); growth is measured from the first sample after the warm-up's snapshot.
