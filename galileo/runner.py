@@ -373,8 +373,13 @@ class LocalPool:
     def map(self, fn, iterable: Iterable):
         try:
             yield from self._pool.map(fn, iterable)
-        except BrokenProcessPool as e:
-            raise WorkerDied(f"an inference worker died: {e}") from None
+        except BrokenProcessPool:
+            self._pool.shutdown(wait=True, cancel_futures=True)   # the others are stopped; states known
+            dead = self.dead_workers()
+            said = "; ".join(f"pid {w['pid']} {w['how']}" for w in dead)
+            if any(w["how"] == "killed by SIGKILL" for w in dead):
+                said += " (the system's out-of-memory killer sends SIGKILL: fewer --workers use less memory)"
+            raise WorkerDied(f"an inference worker died: {said}") from None
 
     def dead_workers(self) -> list[dict]:
         """After a `WorkerDied` and `shutdown`: the workers that died of their own, as

@@ -121,3 +121,30 @@ def test_run_config_is_checked_before_any_work(frozen):
             infer(scene, tracks, RunConfig(**bad), progress=False)
     with pytest.raises(GalileoError, match="m1_kg"):
         infer(scene, tracks, RunConfig(chains=1, sweeps=1, bounds={"m1_kg": (0.5, 0.5)}), progress=False)
+
+
+def _die_in_worker(code: int) -> int:
+    import os
+    import signal
+
+    if code == 0:
+        return os.getpid()
+    os.kill(os.getpid(), signal.SIGKILL)
+    return -1
+
+
+def test_a_worker_that_dies_is_named_in_one_error():
+    """A worker killed mid-task (as the out-of-memory killer does) ends the map with WorkerDied
+    naming its pid and signal, and a hint (what `galileo infer` prints in one line)."""
+    from galileo.runner import LocalPool, WorkerDied
+
+    pool = LocalPool(2)
+    try:
+        with pytest.raises(WorkerDied) as e:
+            list(pool.map(_die_in_worker, [0, 9, 0, 0]))
+    finally:
+        pool.shutdown()
+    msg = str(e.value)
+    assert "\n" not in msg
+    killed = [w for w in pool.dead_workers() if w["how"] == "killed by SIGKILL"]
+    assert len(killed) == 1 and f"pid {killed[0]['pid']} killed by SIGKILL" in msg and "--workers" in msg
