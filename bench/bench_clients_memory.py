@@ -303,11 +303,14 @@ def sample_row(t_s: float, viewer, ctrl, scrub, worker_pids: list[int], count_ob
             "resimulations": viewer.resimulations, "rounds": st["rounds"], "sweeps": st["sweeps"],
             "running": sum(1 for c in st["chains"].values() if c["running"]),
             "threads": threading.active_count(), "viser": viser_buffers(viewer),
-            "malloc_mb": malloc_mb(), "maps_mb": maps_mb(),
+            "malloc_mb": malloc_mb(), "maps_mb": maps_mb(detail=MAPS_DETAIL),
             "gc_objects": len(gc.get_objects()) if count_objects else None}
 
 
-def maps_mb() -> dict | None:
+MAPS_DETAIL = False   # --maps-detail: each big mapping in every sample (about 3 MB of this process's own an hour)
+
+
+def maps_mb(detail: bool = True) -> dict | None:
     """This process's resident memory by kind of mapping (/proc/self/smaps): "heap" (glibc's
     main arena, brk), "anon" (anonymous mappings: glibc's thread arenas and large blocks,
     Rust's allocator, numpy's large arrays, thread stacks), "file" (code and mapped files); and
@@ -335,7 +338,8 @@ def maps_mb() -> dict | None:
             if kind == "anon" and mb >= 1.0:
                 big[start] = round(mb, 1)
     out = {k: round(v, 1) for k, v in out.items()}
-    out["anon_big"] = big
+    if detail:
+        out["anon_big"] = big
     return out
 
 
@@ -438,8 +442,12 @@ def main() -> int:
     p.add_argument("--trim", action="store_true",
                    help="malloc_trim after each snapshot (hands its freed memory back; RSS then climbs back)")
     p.add_argument("--count-objects", action="store_true", help="also count the garbage collector's objects")
+    p.add_argument("--maps-detail", action="store_true",
+                   help="record every anonymous mapping of 1 MB or more in each sample (which one grows)")
     p.add_argument("--out", help="write the JSON here too (rewritten as the run goes)")
     args = p.parse_args()
+    global MAPS_DETAIL
+    MAPS_DETAIL = args.maps_detail
     result = run(args)
     summary = {k: v for k, v in result.items() if k not in ("samples", "snapshots")}
     print(json.dumps(summary, indent=1))
