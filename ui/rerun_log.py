@@ -293,9 +293,10 @@ class RerunLogger:
             session_dir = Path(session_dir)
             session_dir.mkdir(parents=True, exist_ok=True)
             self.rrd_path = session_dir / RRD_NAME
-            # No footer: to write one, rerun keeps every chunk's metadata in memory until the file
-            # closes (rerun issue 12623), which grew the app by ~2.5 MB per 1,000 scrubs, without
-            # bound. The file is a complete recording without it (`rerun rrd optimize` adds one).
+            # No footer: to write one, rerun keeps every chunk's metadata in memory until the
+            # file closes (rerun issue 12623), which grew the app by 2-3 MB per 1,000 samples
+            # logged, without bound. The file is a whole recording without it (`rerun rrd
+            # optimize` writes a copy with one).
             sinks.append(rr.FileSink(self.rrd_path, write_footer=False))
         if mode == "web":
             server = rr.GrpcServerSink(host, grpc_port)   # rr.serve_grpc, but bindable and teed with the file
