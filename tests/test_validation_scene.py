@@ -314,7 +314,7 @@ def test_scenes_built_in_code_are_validated():
         splash.default_scene("box", density_g_cm3=30)
 
 
-@pytest.mark.parametrize("values, message", [
+@pytest.mark.parametrize("base, values, message", [(RAMP, v, m) for v, m in [
     ({"m1_kg": 1e308}, "m1_kg: 1e+308 is outside (0, 100]"),
     ({"m2_kg": -1.0}, "m2_kg: -1.0 is outside (0, 100]"),
     ({"k1": math.nan}, "k1: expected a finite number, got nan"),
@@ -325,22 +325,14 @@ def test_scenes_built_in_code_are_validated():
     ({"angle_deg": math.inf}, "angle_deg: expected a finite number, got inf"),
     ({"log10_sigma_mps": 1e308}, "log10_sigma_mps: 1e+308 is outside [-4, 1]"),
     ({"offset_units": 30.0}, "objects[0]: starts 1.235 m up the ramp, beyond its length_m 0.9"),
-])
-def test_with_values_checks_every_value(values, message):
-    scene = registry.scene_from_json(copy.deepcopy(RAMP))
-    with pytest.raises(SceneError) as info:
-        scene.with_values(values)
-    assert str(info.value) == message
-
-
-@pytest.mark.parametrize("values, message", [
+]] + [(SPLASH, v, m) for v, m in [
     ({"start_step": 5.5}, "start_step: expected an integer, got 5.5"),
     ({"density_g_cm3": 1e308}, "density_g_cm3: 1e+308 is outside (0, 25]"),
     ({"volume_cm3": 0.0}, "volume_cm3: 0.0 is outside [0.01, 100]"),
     ({"drag_water": -1.0}, "drag_water: -1.0 is outside [0, 100]"),
-])
-def test_splash_with_values_checks_every_value(values, message):
-    scene = registry.scene_from_json(copy.deepcopy(SPLASH))
+]])
+def test_with_values_checks_every_value(base, values, message):
+    scene = registry.scene_from_json(copy.deepcopy(base))
     with pytest.raises(SceneError) as info:
         scene.with_values(values)
     assert str(info.value) == message
