@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from tqdm import tqdm
+from galileo.progress import tqdm
 
 from . import registry
 from .errors import GalileoError

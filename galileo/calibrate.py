@@ -62,7 +62,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from galileo.progress import tqdm
 
 from . import registry
 from .errors import GalileoError

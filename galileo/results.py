@@ -60,7 +60,8 @@ def chain_stats(kept: Sequence[np.ndarray], names: Sequence[str]) -> dict:
             for key, fn in (("r_hat", lambda a: array_stats.rhat(a, chain_axis=0, draw_axis=1)),
                             ("ess_bulk", lambda a: array_stats.ess(a, chain_axis=0, draw_axis=1, method="bulk")),
                             ("ess_tail", lambda a: array_stats.ess(a, chain_axis=0, draw_axis=1, method="tail", prob=(0.05, 0.95)))):
-                v = float(fn(xj))
+                with np.errstate(divide="ignore", invalid="ignore"):   # a chain that never moved: None
+                    v = float(fn(xj))
                 out[key][n] = v if math.isfinite(v) else None
     return out
 

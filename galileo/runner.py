@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from typing import Iterable, NamedTuple, Sequence
 
 import numpy as np
-from tqdm import tqdm
+from galileo.progress import tqdm
 
 from . import registry
 from .datatypes import Tracks

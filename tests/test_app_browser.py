@@ -19,7 +19,7 @@ def viewer(demo_dir, tmp_path_factory):
 
 
 def test_browser_scrubs_samples_and_the_scene_changes(viewer):
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import expect, sync_playwright
 
     viewer.follow_map.value = False        # the test picks the samples (the refresh would show the MAP)
     viewer.set_frame(viewer.n_frames - 1)  # poses at the end show where each sample leads
@@ -46,7 +46,7 @@ def test_browser_scrubs_samples_and_the_scene_changes(viewer):
             assert wait_until(lambda: viewer.server.get_clients(), 60), "the viser client never connected"
             sliders = page.get_by_role("slider")
             sliders.first.wait_for(timeout=30000)
-            assert sliders.count() == 3  # Frame, Simulated opacity, Sample
+            expect(sliders).to_have_count(3, timeout=30000)  # Frame, Simulated opacity, Sample
             sliders.nth(2).focus()
             for _ in range(3):
                 page.keyboard.press("ArrowRight")

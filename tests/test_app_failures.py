@@ -280,7 +280,9 @@ def test_rerun_web_listens_only_on_the_apps_host(tmp_path):
     try:
         log.log_sweep(0, 1, -3.0, {"k1": 0.5})
         log.flush()
-        assert _listening(web_port) == ["127.0.0.1"] and _listening(grpc_port) == ["127.0.0.1"]
+        for port in (web_port, grpc_port):     # (rerun may bind its servers from its own threads)
+            wait_until(lambda: _listening(port), 60, f"port {port} to listen")
+            assert _listening(port) == ["127.0.0.1"], port
         with urllib.request.urlopen(log.web_url, timeout=10) as page:
             assert page.status == 200 and b"<html" in page.read(4096).lower()
         other = _other_address()

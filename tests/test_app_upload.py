@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import ROOT, free_port, launch_chromium, needs_chromium
+from conftest import ROOT, free_port, launch_chromium, needs_chromium, wait_until
 
 browser_test = needs_chromium
 
@@ -163,7 +163,7 @@ def fill(page, label: str, value) -> None:
 
 @browser_test
 def test_upload_calibrate_and_infer_in_the_browser(clip, tmp_path):
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import expect, sync_playwright
 
     from galileo.registry import load_scene
 
@@ -194,7 +194,7 @@ def test_upload_calibrate_and_infer_in_the_browser(clip, tmp_path):
                 assert err_px < 1.0, result           # clicks land within a CSS pixel of the truth
                 page.screenshot(path=str(tmp_path / "calibration.png"))
                 start = page.get_by_role("button", name="Start inference")
-                assert start.is_enabled()
+                expect(start).to_be_enabled(timeout=30000)
                 start.click()
                 # the same page reconnects to the viewer; the chains' samples come in
                 status = page.get_by_text(re.compile(r"running / 2 chains"))
@@ -225,7 +225,7 @@ def test_upload_calibrate_and_infer_in_the_browser(clip, tmp_path):
 
 @browser_test
 def test_wrong_clicks_and_wrong_files_say_so_in_the_browser(clip, tmp_path):
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import expect, sync_playwright
 
     video, truth = clip
     uv = true_points(truth)
@@ -243,16 +243,16 @@ def test_wrong_clicks_and_wrong_files_say_so_in_the_browser(clip, tmp_path):
                 text = wait_text(line, "is not a video")
                 assert text.startswith("notes.txt (text/plain) is not a video")
                 assert line.evaluate("e => getComputedStyle(e).color") == red
-                assert page.locator(".mantine-Notification-root", has_text="is not a video").count() >= 1
+                page.locator(".mantine-Notification-root", has_text="is not a video").first.wait_for(state="attached", timeout=30000)
                 # over the cap: refused when the transfer starts, and the button works again
                 upload(page, {"name": "big.mp4", "mimeType": "video/mp4", "buffer": os.urandom(2 * TEST_CAP_BYTES)})
                 wait_text(line, r"big\.mp4 is 195\.3 KB, over the 97\.7 KB cap")
                 page.screenshot(path=str(tmp_path / "refused.png"))
-                assert page.get_by_role("button", name="Upload video").is_enabled()
+                expect(page.get_by_role("button", name="Upload video")).to_be_enabled(timeout=30000)
                 # a video's name and type but not a video inside
                 upload(page, {"name": "broken.mp4", "mimeType": "video/mp4", "buffer": b"\x00" * 5000})
                 wait_text(line, r"cannot read video broken\.mp4")
-                assert not start.is_enabled()
+                expect(start).to_be_disabled(timeout=30000)
                 # a real one, then clicks out of order: upper far first
                 upload(page, str(video))
                 wait_text(line, r"ramp-clip\.mp4: 320x240")
@@ -268,7 +268,7 @@ def test_wrong_clicks_and_wrong_files_say_so_in_the_browser(clip, tmp_path):
                 assert "upper near, upper far, foot far, foot near" in text
                 assert calib.evaluate("e => getComputedStyle(e).color") == red
                 page.screenshot(path=str(tmp_path / "wrong-order.png"))
-                assert not start.is_enabled()
+                expect(start).to_be_disabled(timeout=30000)
                 # Undo twice, then a click in the letterbox beside the frame: refused, said so
                 for _ in range(2):
                     page.get_by_role("button", name="Undo last point").click()
@@ -280,18 +280,18 @@ def test_wrong_clicks_and_wrong_files_say_so_in_the_browser(clip, tmp_path):
                 else:                                        # bars beside it
                     click_pixel(page, -10, H / 2)
                 wait_text(guide, r"outside the 320x240 frame")
-                assert len(field(page, "Points (px)").input_value().split()) == 2
+                assert wait_until(lambda: len(field(page, "Points (px)").input_value().split()) == 2, 30)
                 # three on a line
                 page.get_by_role("button", name="Clear points").click()
                 wait_text(guide, "Click point 1 of 4")
                 pts = " ".join(f"{u:.1f},{v:.1f}" for u, v in [uv[0], (uv[0] + uv[2]) / 2, uv[2], uv[3]])
                 fill(page, "Points (px)", pts)
                 wait_text(calib, "on one line")
-                assert not start.is_enabled()
+                expect(start).to_be_disabled(timeout=30000)
                 # and right again: Start becomes enabled
                 fill(page, "Points (px)", " ".join(f"{u:.2f},{v:.2f}" for u, v in uv))
                 wait_text(calib, r"reprojection error")
-                assert start.is_enabled()
+                expect(start).to_be_enabled(timeout=30000)
                 page.screenshot(path=str(tmp_path / "errors.png"))
             finally:
                 browser.close()

@@ -9,6 +9,7 @@ import threading
 import numpy as np
 import pytest
 
+from conftest import wait_until
 from galileo.errors import GalileoError
 from galileo.runner import RunConfig as InferenceConfig
 from galileo.runner import infer
@@ -641,15 +642,28 @@ def test_start_stop_in_the_background(demo, make, tmp_path):
         with rounds_seen:
             assert rounds_seen.wait_for(lambda: done[0] >= k, timeout=60), f"round {k} never came"
 
+    # the runner thread is held in its listener after round `hold_at` while stop() is asked
+    hold_at, held, release = [None], threading.Event(), threading.Event()
+
+    def hold(kind, payload):
+        if kind == "sweeps" and payload["round"] == hold_at[0]:
+            held.set()
+            assert release.wait(60)
+    ctl.add_listener(hold)
+
     ctl.start()
     assert ctl.running
     wait_rounds(3)
     ctl.set_sigma(0.08)          # while rounds run: applies between two of them
-    wait_rounds(ctl.status()["rounds"] + 2)
-    before = ctl.status()["rounds"]
-    ctl.stop()
-    # stop lets the round in flight finish and starts no other
-    assert not ctl.running and ctl.status()["rounds"] <= before + 1
+    hold_at[0] = ctl.status()["rounds"] + 2
+    assert held.wait(60)
+    stopper = threading.Thread(target=ctl.stop)
+    stopper.start()
+    assert wait_until(ctl._stop_evt.is_set, 60)     # stop() has asked; the runner is still held
+    release.set()
+    stopper.join(120)
+    # stop lets the round that was under way finish and starts no other
+    assert not stopper.is_alive() and not ctl.running and ctl.status()["rounds"] == hold_at[0]
     assert ctl.status()["error"] is None
 
     ev = next(e for e in ctl.events if e["kind"] == "sigma")

@@ -112,7 +112,25 @@ def synthetic_patches(n, rng):
     return x, y
 
 
+# The trained network's last bits depend on the CPU's kernels (oneDNN's and OpenBLAS's AVX-512,
+# AVX2 or SSE code) and 40 epochs amplify them much as a different seed does. The thresholds below
+# come from the spread of these statistics over 40 seeds (training data, test data and network)
+# under three kernel families, 120 trainings (`python tests/spread_lenet.py`; 2026-11-25):
+#   Spearman rho, mass / friction:       min 0.80 / 0.82, median 0.94 / 0.94
+#   R^2, mass / friction:                min 0.34 / 0.58, median 0.79 / 0.83
+#   90% interval coverage (80 trainings): min 0.86 / 0.91, median 0.99 / 0.98
+#   median predicted SD / RMS error:     0.87-1.82 / 0.58-4.53
+# Each threshold sits below the lowest value seen, and far above what a network that learned
+# nothing scores (rho ~ 0 +- 0.1 for 100 test patches, R^2 <= 0).
+LEARNS_MIN_RHO = 0.7
+LEARNS_MIN_R2 = 0.25
+HONEST_MIN_COVER90 = 0.8
+HONEST_SD_FACTOR = 6.0
+
+
 def test_lenet_learns_mass_and_friction_from_pixels_and_ignores_missing_labels():
+    from scipy.stats import spearmanr
+
     rng = np.random.default_rng(0)
     x, y = synthetic_patches(320, rng)
     y_train = y.copy()
@@ -121,12 +139,15 @@ def test_lenet_learns_mass_and_friction_from_pixels_and_ignores_missing_labels()
     trained = lenet.train(x, y_train, seed=0, members=2, epochs=40, progress=False)
     mean, sd = lenet.predict(trained.states, xt)
     for q in range(2):
-        mse = np.mean((mean[:, q] - yt[:, q]) ** 2)
-        assert mse < 0.25 * np.var(yt[:, q]), (q, mse)   # explains over 3/4 of the variance
-    # the predicted SD is on the scale of the errors (within a factor of 3 of the RMS error)
-    for q in range(2):
-        rms = math.sqrt(np.mean((mean[:, q] - yt[:, q]) ** 2))
-        assert rms / 3 < np.median(sd[:, q]) < 3 * rms + 1e-3
+        err = mean[:, q] - yt[:, q]
+        # it learned the quantity: the ranking and most of the variance
+        assert spearmanr(mean[:, q], yt[:, q])[0] > LEARNS_MIN_RHO, q
+        assert np.mean(err ** 2) < (1 - LEARNS_MIN_R2) * np.var(yt[:, q]), q
+        # it says how unsure it is: its 90% intervals are not overconfident, and its SD is on the
+        # scale of its errors
+        assert np.mean(np.abs(err) < 1.645 * sd[:, q]) >= HONEST_MIN_COVER90, q
+        rms = math.sqrt(np.mean(err ** 2))
+        assert rms / HONEST_SD_FACTOR < np.median(sd[:, q]) < HONEST_SD_FACTOR * rms, q
 
 
 def test_lenet_refuses_to_train_without_labels():

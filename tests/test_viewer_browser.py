@@ -118,7 +118,7 @@ def test_remove_chain_is_confirmed_and_the_selection_stays(viewer, page):
         page.locator('.galileo-message[data-ok="true"]').filter(has_text="removed chain 2").wait_for(timeout=10000)
         assert viewer.chain_dropdown.value == "1"
         page.get_by_text(re.compile(r"^chain 1, sample \d+:")).wait_for(timeout=10000)   # the sample shown
-        assert confirm.count() == 0 or not confirm.is_visible()
+        confirm.wait_for(state="hidden", timeout=10000)
     finally:
         page.get_by_text("Steering").click()
 
@@ -148,16 +148,28 @@ def screenshot(page, **kw) -> np.ndarray:
     return cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[..., ::-1].astype(int)
 
 
-def settled(page, timeout_s: float = 30.0) -> np.ndarray:
-    """A screenshot once the page has stopped changing (two in a row alike: software WebGL on a
-    busy machine takes up to a second a frame, so a fixed wait is not enough)."""
-    last = screenshot(page)
+def _alike(a: np.ndarray, b: np.ndarray) -> bool:
+    return (np.abs(a - b).sum(axis=2) > 30).mean() < 1e-4
+
+
+def settled(page, timeout_s: float = 60.0, differs_from: np.ndarray | None = None) -> np.ndarray:
+    """A screenshot once the page has stopped changing: three in a row alike, 0.5 s apart
+    (software WebGL on a busy machine takes up to a second a frame, so a fixed wait is not
+    enough). With `differs_from`, first wait for the page to differ from that shot: a change the
+    server sent may not have reached a busy browser yet, and the old picture is also still."""
     deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        time.sleep(0.5)
+    last = screenshot(page)
+    if differs_from is not None:
+        while _alike(last, differs_from):
+            assert time.monotonic() < deadline, "the page never changed"
+            page.wait_for_timeout(200)
+            last = screenshot(page)
+    alike = 0
+    while alike < 2:
+        assert time.monotonic() < deadline, "the page never settled"
+        page.wait_for_timeout(500)
         shot = screenshot(page)
-        if (np.abs(shot - last).sum(axis=2) > 30).mean() < 1e-4:
-            return shot
+        alike = alike + 1 if _alike(shot, last) else 0
         last = shot
     return last
 
@@ -171,11 +183,11 @@ def test_camera_view_is_letterboxed_exact_and_per_browser(viewer, browser):
 
     a, b = open_page(browser, viewer, CAMERA_WINDOW), open_page(browser, viewer, CAMERA_WINDOW)
     try:
-        b_before = settled(b)
+        b_before, a_before = settled(b), settled(a)
         a.get_by_role("button", name="Camera view").click()
         assert wait_until(lambda: len(viewer._camera_clients) == 1, 10)
         client = viewer.server.get_clients()[next(iter(viewer._camera_clients))]
-        shot = settled(a)
+        shot = settled(a, differs_from=a_before)
         # the bars: the sky beside the frame is black (a stretched frame put the grey wall there)
         bar = shot[20:160, 2:12]          # (left of the "software WebGL" notice)
         assert bar.max() < 40, f"no black bar beside the frame: {bar.max()}"
@@ -185,11 +197,12 @@ def test_camera_view_is_letterboxed_exact_and_per_browser(viewer, browser):
         changed = np.abs(b_after - b_before)[scene_part].sum(axis=2) > 30
         assert changed.mean() < 0.01, f"{changed.mean():.1%} of the other browser's scene changed"
         # the simulated objects where the video camera puts them: draw them opaque, then invisible
-        viewer.opacity_slider.value = 1.0
-        opaque = settled(a)
+        # (each shot waits for the change to reach the page: opacity 1 -> 0 -> 1)
+        assert viewer.opacity_slider.value == 1.0
         viewer.opacity_slider.value = 0.0
-        clear = settled(a)
+        clear = settled(a, differs_from=shot)
         viewer.opacity_slider.value = 1.0
+        opaque = settled(a, differs_from=clear)
         cam = viewer.camera
         h, w = CAMERA_WINDOW["height"], CAMERA_WINDOW["width"]
         _, fov = letterbox(viewer.video[viewer.frame], cam, w / h)

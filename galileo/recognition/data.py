@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from galileo.progress import tqdm
 
 from .. import registry
 from ..datatypes import Tracks

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import contextlib
 
 import numpy as np
-from tqdm import tqdm
+from galileo.progress import tqdm
 
 from ..model import Scenario
 

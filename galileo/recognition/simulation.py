@@ -48,7 +48,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from galileo.progress import tqdm
 
 from .. import registry
 from ..datatypes import Tracks

@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from galileo.progress import tqdm
 
 from .. import registry
 from ..errors import GalileoError

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from galileo.progress import tqdm
 
 from ...jsonio import write_json
 from .materials import MATERIALS, MATERIALS_BY_NAME, CatalogueObject, catalogue, sample_target

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from galileo.progress import tqdm
 
 from ...camera import backproject_to_plane
 from ...datatypes import ObjectTrack, Tracks

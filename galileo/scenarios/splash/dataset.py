@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from galileo.progress import tqdm
 
 from ...errors import GalileoError
 from ...jsonio import write_json
