@@ -31,8 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from galileo.progress import tqdm
-
+from .progress import tqdm
 from . import registry
 from .errors import GalileoError
 from .jsonio import read_json, write_json

@@ -62,8 +62,8 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-from galileo.progress import tqdm
 
+from .progress import tqdm
 from . import registry
 from .errors import GalileoError
 from .jsonio import atomic_write_bytes, read_json, write_json

@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 from typing import Iterable, NamedTuple, Sequence
 
 import numpy as np
-from galileo.progress import tqdm
 
+from .progress import tqdm
 from . import registry
 from .datatypes import Tracks
 from .errors import GalileoError

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from galileo.progress import tqdm
 
+from ..progress import tqdm
 from .. import registry
 from ..datatypes import Tracks
 from ..errors import GalileoError, StillVideo

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import contextlib
 
 import numpy as np
-from galileo.progress import tqdm
 
+from ..progress import tqdm
 from ..model import Scenario
 
 MASS_RANGE_KG = Scenario.recognition_mass_range_kg   # the default scale (the ramp's)

@@ -48,8 +48,8 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
-from galileo.progress import tqdm
 
+from ..progress import tqdm
 from .. import registry
 from ..datatypes import Tracks
 from ..errors import GalileoError

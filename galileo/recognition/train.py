@@ -21,8 +21,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from galileo.progress import tqdm
 
+from ..progress import tqdm
 from .. import registry
 from ..errors import GalileoError
 from ..jsonio import atomic_write_bytes, write_json

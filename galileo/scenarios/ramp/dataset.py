@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from galileo.progress import tqdm
 
+from ...progress import tqdm
 from ...jsonio import write_json
 from .materials import MATERIALS, MATERIALS_BY_NAME, CatalogueObject, catalogue, sample_target
 from .physics import Simulator

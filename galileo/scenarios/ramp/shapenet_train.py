@@ -68,7 +68,7 @@ def _example(seed: int):
 
 
 def make_examples(n: int, seed: int, workers: int | None = None, progress: bool = True):
-    from galileo.progress import tqdm
+    from ...progress import tqdm
 
     seeds = [int(s) for s in np.random.SeedSequence(seed).generate_state(n)]
     workers = max(1, min(workers or os.cpu_count() or 1, n))

@@ -45,8 +45,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from galileo.progress import tqdm
 
+from ...progress import tqdm
 from ...camera import backproject_to_plane
 from ...datatypes import ObjectTrack, Tracks
 from ...errors import GalileoError

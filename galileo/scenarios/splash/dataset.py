@@ -26,8 +26,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from galileo.progress import tqdm
 
+from ...progress import tqdm
 from ...errors import GalileoError
 from ...jsonio import write_json
 from .materials import FLOATERS, SINKERS, CatalogueObject, catalogue
