@@ -4,13 +4,18 @@
     python app.py --scenario splash                # the splash demo: an object dropped into a tank of water
     python app.py --video V.mp4 --scene S.json     # your own video and its scene/camera file
     python app.py --upload                         # your own video, uploaded and calibrated in the browser
-    python app.py --session sessions/<name>        # reopen a recorded session (scrub it; resume its chains)
+    python app.py --session sessions/<name>        # reopen a recorded session (paused: scrub it, Resume runs on)
     python app.py --until-rhat 1.01 [--min-ess 400 --max-sweeps 1500]   # run on until every latent converged
 
 Tracks the video, starts the MCMC chains in background worker processes, serves the viewer
 (viser) on http://127.0.0.1:8080 and records the session under sessions/<timestamp>-<name>/.
 Log-likelihood traces, posteriors, the video with its tracks and the selected simulation
 stream to rerun (`--rerun save`, the default, writes session.rrd in the session folder).
+
+One app per session: the app holds the session folder's lock (`ui.session.SessionLock`) from
+the folder's creation (or its reopening) until it exits; a second app on the same folder is
+refused in one line naming the first (pid, host). A folder deleted or moved while the app runs
+is said at once; the session is then saved in a new folder beside it (see ui/controller.py).
 """
 from __future__ import annotations
 
@@ -76,6 +81,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--rerun", nargs="+", default=["save"], metavar="MODE",
                    help="off | save (session.rrd in the session folder) | web (also serve rerun's web viewer) "
                         "| connect URL")
+    p.add_argument("--rerun-web-port", type=port_int, default=9090, metavar="PORT",
+                   help="with --rerun web: the web viewer's port (default 9090)")
+    p.add_argument("--rerun-grpc-port", type=port_int, default=9876, metavar="PORT",
+                   help="with --rerun web: the port of its gRPC server, which the viewer reads (default 9876)")
     p.add_argument("--chains", type=chains_int, default=None,
                    help="chains to start (default: the demo's, ramp 16, splash 50)")
     p.add_argument("--sweeps", type=sweeps_int, default=75,
@@ -139,6 +148,10 @@ def _rerun_mode(args) -> tuple[str, str | None]:
         return mode, extra[0]
     if extra:
         raise GalileoError(f"--rerun {mode} takes no URL (only connect does), got {' '.join(extra)!r}")
+    if mode != "web" and (args.rerun_web_port, args.rerun_grpc_port) != (9090, 9876):
+        raise GalileoError("--rerun-web-port and --rerun-grpc-port are for --rerun web")
+    if args.rerun_web_port == args.rerun_grpc_port:
+        raise GalileoError(f"--rerun-web-port and --rerun-grpc-port must differ (both {args.rerun_web_port})")
     return mode, None
 
 
@@ -158,10 +171,15 @@ def main(argv=None) -> int:
 
 def check_inputs(args) -> None:
     """What can be refused at once, before anything slow: the host resolves and the port can be
-    bound on it, the files named exist (and the scene file is valid)."""
+    bound on it, the files named exist (and the scene file is valid), a reopened session has
+    its video."""
     from galileo.errors import GalileoError
+    from ui.session import VIDEO_FILE
 
     port_is_free(args.host, args.port)
+    if args.rerun and args.rerun[0] == "web":
+        for flag in ("--rerun-web-port", "--rerun-grpc-port"):
+            port_is_free(args.host, getattr(args, flag[2:].replace("-", "_")), flag)
     for flag, path, kind in (("--video", args.video, "file"), ("--scene", args.scene, "file"),
                              ("--model", args.model, "file"), ("--session", args.session, "folder")):
         if path is None:
@@ -173,13 +191,15 @@ def check_inputs(args) -> None:
             raise GalileoError(f"{flag}: {path} is not a file")
         if kind == "folder" and not p.is_dir():
             raise GalileoError(f"{flag}: {path} is not a session folder")
+    if args.session and not (Path(args.session) / VIDEO_FILE).is_file():
+        raise GalileoError(f"session {args.session} has no {VIDEO_FILE}")
     if args.scene:
         from galileo import registry
 
         registry.load_scene(args.scene)
 
 
-def port_is_free(host: str, port: int) -> None:
+def port_is_free(host: str, port: int, flag: str = "--port") -> None:
     """Refuse a host that does not resolve to an address of this machine, or a port another
     program holds on it (the viewer would otherwise move to the next one); bound as the
     viewer's server will bind (every address the host resolves to, address reuse on, an
@@ -191,7 +211,7 @@ def port_is_free(host: str, port: int) -> None:
     from galileo.errors import GalileoError
 
     if not (isinstance(port, int) and 1 <= port <= 65535):
-        raise GalileoError(f"--port must be 1-65535, got {port!r}")
+        raise GalileoError(f"{flag} must be 1-65535, got {port!r}")
     addrs = check_host(host)
     bound = 0
     last = None
@@ -206,10 +226,10 @@ def port_is_free(host: str, port: int) -> None:
             except OSError as e:
                 if e.errno == errno.EADDRINUSE:
                     raise GalileoError(f"port {port} on {host} is taken (another app running?); choose another with "
-                                       f"--port ({e.strerror or e})") from None
+                                       f"{flag} ({e.strerror or e})") from None
                 if e.errno == errno.EACCES:
                     raise GalileoError(f"port {port} on {host}: permission denied (ports below 1024 need "
-                                       "privileges); choose another with --port") from None
+                                       f"privileges); choose another with {flag}") from None
                 if e.errno != errno.EADDRNOTAVAIL:
                     raise GalileoError(f"--host {host}: cannot serve on port {port} there "
                                        f"({e.strerror or e})") from None
@@ -221,30 +241,32 @@ def port_is_free(host: str, port: int) -> None:
 
 
 def new_session(args, video_path: Path, scene_path: Path, name: str, model=None, say=print):
-    """Track the video with the scene and make a new session folder with the video copied into
-    it: (session, scene, tracks, the chains' recognition init or None). `say` reports progress."""
+    """Track the video with the scene and make a new session folder, locked from its creation,
+    with the video copied into it: (session, scene, tracks, the chains' recognition init or
+    None, the session's lock). `say` reports progress."""
     import shutil
 
     from galileo import registry
-    from ui.session import new_session_dir
+    from ui.session import VIDEO_FILE, SessionLock, new_session_dir
 
     scene = registry.load_scene(scene_path)
     say(f"tracking {video_path} ...")
     tracks = registry.of(scene).track(video_path, scene)
     session = new_session_dir(SESSIONS, name)
-    shutil.copyfile(video_path, session / "video.mp4")
+    lock = SessionLock(session)
+    shutil.copyfile(video_path, session / VIDEO_FILE)
     # (the controller writes scene.json and tracks.json into the session; bounds: the priors')
     init = None
     if model is not None:
         from galileo.recognition.model import recognition_init
 
         init = recognition_init(model, video_path, scene, tracks, source=str(args.model or "built-in"))
-    return session, scene, tracks, init
+    return session, scene, tracks, init, lock
 
 
-def start_chains(args, session: Path, scene, tracks, init=None):
-    """The new session's controller (its worker processes are forked here: call it before any
-    server thread or socket exists)."""
+def start_chains(args, session: Path, scene, tracks, init=None, lock=None):
+    """The new session's controller, holding its `lock` (its worker processes are forked here:
+    call it before any server thread or socket exists)."""
     from galileo.errors import GalileoError
     from galileo.results import MIN_ESS
     from ui.controller import Controller
@@ -253,7 +275,8 @@ def start_chains(args, session: Path, scene, tracks, init=None):
     try:
         return Controller(scene, tracks, chains=args.chains, seed=args.seed, workers=args.workers,
                           session_dir=session, init=init, moves=args.moves or "default", sweeps=args.sweeps,
-                          until_rhat=args.until_rhat, min_ess=min_ess, max_sweeps=args.max_sweeps)
+                          until_rhat=args.until_rhat, min_ess=min_ess, max_sweeps=args.max_sweeps,
+                          session_lock=lock)
     except ValueError as e:
         raise GalileoError(str(e)) from None
 
@@ -262,10 +285,8 @@ def run(args) -> int:
     from galileo.errors import GalileoError
     from galileo import registry
     from galileo.results import MIN_ESS
-    from galileo.video import read_video
     from ui.controller import Controller
-    from ui.rerun_log import RRD_NAME, ControllerFeed, RerunLogger
-    from ui.viewer import Viewer
+    from ui.session import VIDEO_FILE
 
     mode, url = _rerun_mode(args)
     port_is_free(args.host, args.port)     # before tracking and the chains, which take a while
@@ -283,23 +304,26 @@ def run(args) -> int:
         model = load_model(args.model, registry.load_scene(args.scene).scenario if args.scene else args.scenario)
     if args.session:
         session = Path(args.session)
-        ctrl = Controller.load(session, workers=args.workers, sweeps=args.sweeps)
-        if args.until_rhat is not None:   # held chains go on at once when the verdict says so
-            ctrl.run_until(args.until_rhat, min_ess, args.max_sweeps)
+        # its chains wait for Resume (those that were running when it was saved too)
+        ctrl = Controller.load(session, workers=args.workers, sweeps=args.sweeps, paused=True)
+        try:
+            if args.until_rhat is not None:   # the criteria, acted on when the user resumes
+                ctrl.run_until(args.until_rhat, min_ess, args.max_sweeps, verdict=False)
+        except ValueError as e:
+            ctrl.close()
+            raise GalileoError(str(e)) from None
         scene, tracks = ctrl.scene, ctrl.tracks
-        video_path = session / "video.mp4"
-        if not video_path.exists():
-            raise GalileoError(f"session {session} has no video.mp4")
+        video_path = session / VIDEO_FILE
     elif args.upload:   # the browser brings the video and its scene, then as --video --scene
         from ui.calibrate import calibrate_in_browser
 
         # tracking runs while the page shows its progress; the chains' workers are forked once
         # the page's server has stopped (none of its threads or its socket in them)
-        session, scene, tracks, init = calibrate_in_browser(
+        session, scene, tracks, init, lock = calibrate_in_browser(
             args.host, args.port, SESSIONS, lambda v, s, n, say: new_session(args, v, s, n, model, say),
             name=args.name)
-        ctrl = start_chains(args, session, scene, tracks, init)
-        video_path = session / "video.mp4"
+        ctrl = start_chains(args, session, scene, tracks, init, lock)
+        video_path = session / VIDEO_FILE
     else:
         if bool(args.video) != bool(args.scene):
             raise GalileoError("give both --video and --scene (or neither, for the demo)")
@@ -310,9 +334,26 @@ def run(args) -> int:
             folder = ensure_demo(scenario=args.scenario)
             video_path, scene_path = folder / "video.mp4", folder / "scene.json"
             name = args.name or DEMOS[args.scenario].name
-        session, scene, tracks, init = new_session(args, video_path, scene_path, name, model)
-        ctrl = start_chains(args, session, scene, tracks, init)
-    video, _ = read_video(video_path)
+        session, scene, tracks, init, lock = new_session(args, video_path, scene_path, name, model)
+        ctrl = start_chains(args, session, scene, tracks, init, lock)
+    try:
+        return serve(args, ctrl, session, tracks, video_path, mode, url)
+    except BaseException:     # nothing served (or a failure while serving): the workers stop, the lock goes
+        ctrl.close()
+        raise
+
+
+def serve(args, ctrl, session: Path, tracks, video_path: Path, mode: str, url: str | None) -> int:
+    """Log to rerun, serve the viewer and run the chains until Ctrl-C (or SIGTERM); then stop,
+    save and say where the session is saved (exit code 1, saying so, when it could not be)."""
+    import sys
+
+    from galileo.errors import GalileoError
+    from galileo.video import VideoFrames
+    from ui.rerun_log import RRD_NAME, ControllerFeed, RerunLogger
+    from ui.viewer import Viewer
+
+    video = VideoFrames(video_path)     # decoded frame by frame as the viewer shows them, never all held
     old_rrd = session / RRD_NAME
     if mode != "off" and old_rrd.exists():  # keep the earlier run's recording
         import time as _time
@@ -321,6 +362,7 @@ def run(args) -> int:
 
     try:
         logger = RerunLogger(mode, session_dir=session, connect_url=url, host=args.host,
+                             web_port=args.rerun_web_port, grpc_port=args.rerun_grpc_port,
                              latents=list(ctrl.names), n_chains=len(ctrl.all_chain_ids()))
     except RuntimeError as e:
         raise GalileoError(f"rerun: {e}") from None
@@ -335,7 +377,6 @@ def run(args) -> int:
         viewer = Viewer(ctrl, ctrl.likelihood_scene, tracks, video, host=args.host, port=args.port,
                         target_sweeps=args.sweeps)
     except GalileoError:     # the port was taken since the check: nothing started yet, close what is open
-        ctrl.close()
         logger.close()
         raise
     logger.log_selected(viewer.traj)   # the sample the viewer shows, and each one the user selects
@@ -353,7 +394,13 @@ def run(args) -> int:
     ctrl.stop()
     viewer.close()
     logger.close()
-    print(f"saved {session}")
+    ctrl.close()
+    saved = ctrl.status()["session"]
+    if not saved["saving"]:
+        print(f"app: error: the session is NOT saved: {saved['note']}", file=sys.stderr)
+        return 1
+    moved = saved["folder"] != str(session)
+    print(f"saved {saved['folder']}" + (f" (not {session}: that folder was lost while the app ran)" if moved else ""))
     return 0
 
 

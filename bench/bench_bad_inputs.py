@@ -2,7 +2,7 @@
 result, dataset-index and session files, and app.py options, each run as its own process.
 
 Usage (from the repository root):
-    python bench/bench_bad_inputs.py [-j 2] [--timeout 60] [--only KIND[,KIND]] [--json] [--keep]
+    python bench/bench_bad_inputs.py [-j 2] [--timeout 60] [--only KIND[,KIND]] [--skip-slow] [--json] [--keep]
 
 Every input is generated here from the demo's frozen files in tests/data/ (scene.json,
 tracks.json), a tiny video rendered from that scene (320x240, 61 frames), a result and a
@@ -18,7 +18,15 @@ time limit and is classified:
     traceback  a Python traceback on stderr
     hang       still running at the time limit (killed)
     wrong      any other ending: another exit code, or exit 2 with more than one line
-    garbage    accepted: exit 0 (the app: serving), or a NaN / infinity in an output file
+    garbage    accepted: exit 0 (the app: serving), or a NaN / infinity in an output file, or an
+               output a case checks holds what the input cannot support (a position tracked
+               in frames of noise; no note on an object seen in few frames)
+
+A case sent SIGTERM once its first record is written is clean when it ends with exit 143 and
+the one line `galileo: terminated`. A case may have its own time limit (the experiment on
+1,000 missing videos must answer in seconds) and may be slow (`--skip-slow` leaves those out).
+The issue-24 kinds hold item 15 of issue 24 ("the first fifteen minutes"); its `app --session`
+on a session without video.mp4 is the session kind's "video.mp4 missing".
 
 A few controls (valid inputs) must run and exit 0, so that a case is refused for its flaw,
 not for its setting. Prints a table by kind and every failing case with the command that
@@ -29,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import glob
 import json
 import os
 import shlex
@@ -42,6 +51,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -56,6 +66,10 @@ app.SESSIONS = pathlib.Path(sys.argv[2])
 raise SystemExit(app.main(sys.argv[3:]))
 """
 DELETE = object()
+NOISE_FROM = 30          # tiny-noise.mp4: frames from this one on are noise
+LONG_FRAMES = 20_000     # tiny-20000.mp4
+MISSING_VIDEOS = 1000    # dataset-missing/index.json lists this many videos, none there
+MISSING_TIMEOUT_S = 30   # ... and must be refused within this (it took 100-322 s to fail them one by one)
 
 
 @dataclass
@@ -68,6 +82,11 @@ class Case:
     #                              "either": accepting it is documented behaviour, refusing it cleanly is fine too
     outputs: list[str] = field(default_factory=list)   # files checked for NaN / infinity
     gone: list[str] = field(default_factory=list)      # files that must be gone afterwards (expect "accept")
+    timeout: float | None = None   # its own time limit (default: --timeout)
+    slow: bool = False             # minutes, not seconds (left out by --skip-slow)
+    sigterm_after: str | None = None   # a glob under {O}: once it matches, SIGTERM goes to the command
+    check: Callable[[Path, str], str | None] | None = None   # (its folder, stdout) -> what is wrong with an
+    #                                                           accepted run's outputs, or None
 
 
 # -- assets ------------------------------------------------------------------------------------------
@@ -98,7 +117,7 @@ def make_assets(w: Path) -> dict:
     (w / "scene.json").write_text(json.dumps(scene, indent=1))
     (w / "tiny-scene.json").write_text(json.dumps(tiny, indent=1))
     (w / "tracks.json").write_text(json.dumps(tracks))
-    render_to_video(registry.scene_from_json(tiny), w / "tiny.mp4", cam["n_frames"])
+    traj = render_to_video(registry.scene_from_json(tiny), w / "tiny.mp4", cam["n_frames"])
     frames, _ = read_video(w / "tiny.mp4")
     write_video(w / "tiny-15fps.mp4", frames, 15.0)
     write_video(w / "tiny-60fps.mp4", frames, 60.0)
@@ -106,6 +125,15 @@ def make_assets(w: Path) -> dict:
     write_video(w / "tiny-long.mp4", np.concatenate([frames, frames[-1:].repeat(60, 0)]), 30.0)
     write_video(w / "tiny-small.mp4", frames[:, ::2, ::2], 30.0)
     write_video(w / "tiny-one.mp4", frames[:1], 30.0)
+    # issue 24: the second half noise; 20,000 frames (the motion, then the last frame held) at 160x120
+    noise = np.random.default_rng(0).integers(0, 256, frames[NOISE_FROM:].shape, dtype=np.uint8)
+    write_video(w / "tiny-noise.mp4", np.concatenate([frames[:NOISE_FROM], noise]), 30.0)
+    small = frames[:, ::2, ::2]
+    write_video(w / "tiny-20000.mp4", (small[min(i, len(small) - 1)] for i in range(LONG_FRAMES)), 30.0)
+    long_scene = copy.deepcopy(tiny)
+    long_scene["camera"]["K"] = [[140.0, 0.0, 80.0], [0.0, 140.0, 60.0], [0.0, 0.0, 1.0]]
+    long_scene["camera"].update(width_px=160, height_px=120, n_frames=LONG_FRAMES)
+    (w / "tiny-20000-scene.json").write_text(json.dumps(long_scene, indent=1))
     (w / "not-a-video.mp4").write_text("this is text, not a video\n")
     (w / "empty.mp4").write_bytes(b"")
     (w / "a-folder").mkdir(exist_ok=True)
@@ -131,12 +159,22 @@ def make_assets(w: Path) -> dict:
 
     shutil.copyfile(w / "tiny.mp4", sess / "video.mp4")
 
-    # a dataset folder whose index points at the tiny video (for experiment's index checks)
+    # a dataset folder whose index points at the tiny video, with its truth (for experiment's checks)
     ds = w / "dataset"
     (ds / "v1").mkdir(parents=True, exist_ok=True)
     shutil.copyfile(w / "tiny.mp4", ds / "v1" / "video.mp4")
     (ds / "v1" / "scene.json").write_text(json.dumps(tiny, indent=1))
+    truth = {**json.loads((DATA / "truth.json").read_text()), "trajectory": traj.to_json()}
+    (ds / "v1" / "truth.json").write_text(json.dumps(truth))
     (ds / "index.json").write_text(json.dumps({"preset": "demo", "seed": 0, "videos": [{"name": "v1"}]}))
+    # three videos (to stop a run between them), and an index of 1,000 videos that are not there
+    ds3 = w / "dataset3"
+    for name in ("v1", "v2", "v3"):
+        shutil.copytree(ds / "v1", ds3 / name, dirs_exist_ok=True)
+    (ds3 / "index.json").write_text(json.dumps({"videos": [{"name": n} for n in ("v1", "v2", "v3")]}))
+    (w / "dataset-missing").mkdir(exist_ok=True)
+    (w / "dataset-missing" / "index.json").write_text(json.dumps({"videos": [{"name": f"v{i:04d}"}
+                                                                            for i in range(MISSING_VIDEOS)]}))
     splash = registry.get("splash").default_scene().to_json()
     (w / "splash-scene.json").write_text(json.dumps(splash, indent=1))
     return {"scene": scene, "tiny": tiny, "tracks": tracks, "result": json.loads((w / "result.json").read_text()),
@@ -457,7 +495,7 @@ def cases(w: Path, a: dict) -> list[Case]:
                        ("scenario bogus", '{"scenario": "bowling", "videos": [{"name": "v1"}]}')):
         d = w / "gen" / "index" / name
         (d / "v1").mkdir(parents=True, exist_ok=True)
-        for f in ("video.mp4", "scene.json"):
+        for f in ("video.mp4", "scene.json", "truth.json"):
             (d / "v1" / f).write_bytes((w / "dataset" / "v1" / f).read_bytes())
         (d / "index.json").write_text(text)
         add("dataset-index", name, ["experiment", str(d), "--chains", "2", "--sweeps", "2", "--workers", "1",
@@ -532,6 +570,55 @@ def cases(w: Path, a: dict) -> list[Case]:
                        ("dataset-index", "video that does not exist")):
         out[[(c.kind, c.name) for c in out].index((kind, name))].expect = "either"
     add("session", "missing", ["--session", "{W}/none"], prog="app")
+
+    # -- issue 24, item 15 (its `app --session` without video.mp4 is the session kind's "video.mp4 missing";
+    #    its `infer --chains 1 --sweeps 100000` progress is no bad input) --
+    g0 = write(w, "issue24/gravity 0.json", mutated(sc, ("gravity_mps2",), 0))
+    add("issue24:infer", "scene gravity_mps2 0", infer[:3] + [g0] + infer[4:], outputs=["{O}/r.json"])
+    light = write(w, "issue24/mass 1e-18.json", mutated(sc, ("objects", 0, "mass_kg"), 1e-18))
+    add("issue24:infer", "scene mass 1e-18 kg", infer[:3] + [light] + infer[4:], outputs=["{O}/r.json"])
+    add("issue24:simulate", "scene mass 1e-18 kg", ["simulate", "--scene", light, "--frames", "5", "--out", "{O}/t.json"],
+        outputs=["{O}/t.json"])
+    add("issue24:simulate", "scene target mass 1e-20 kg",
+        ["simulate", "--scene", write(w, "issue24/target mass 1e-20.json", mutated(sc, ("objects", 1, "mass_kg"), 1e-20)),
+         "--frames", "5", "--out", "{O}/t.json"], outputs=["{O}/t.json"])
+    add("issue24:simulate", "--set m1_kg=1e-18", ["simulate", "--scene", S, "--frames", "5", "--set", "m1_kg=1e-18",
+                                                  "--out", "{O}/t.json"], outputs=["{O}/t.json"])
+    add("issue24:simulate", "splash density 1e-300 g/cm^3",
+        ["simulate", "--scene", write(w, "issue24/splash density.json", mutated(sp, ("object", "density_g_cm3"), 1e-300)),
+         "--frames", "5", "--out", "{O}/t.json"], outputs=["{O}/t.json"])
+    identity = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+    add("issue24:track", "world_to_camera the identity",
+        ["track", V, "--scene", write(w, "issue24/identity camera.json", mutated(ti, ("camera", "world_to_camera"), identity)),
+         "--quiet", "--out", "{O}/t.json"], outputs=["{O}/t.json"])
+
+    def seen_in_noise(o: Path, stdout: str) -> str | None:
+        """Frames of noise (from NOISE_FROM on) tracked as visible: positions invented."""
+        tracks = json.loads((o / "t.json").read_text())
+        seen = {t["name"]: sum(t["visible"][NOISE_FROM:]) for t in tracks["objects"]}
+        invented = {k: v for k, v in seen.items() if v}
+        return f"positions in frames of noise: {invented}" if invented else None
+
+    add("issue24:track", "second half of the video noise", ["track", "{W}/tiny-noise.mp4", "--scene", TS, "--quiet",
+                                                            "--out", "{O}/t.json"],
+        expect="either", outputs=["{O}/t.json"], check=seen_in_noise)
+
+    def noted(o: Path, stdout: str) -> str | None:
+        """An object seen in few of 20,000 frames must come with a note (printed, and in the tracks)."""
+        tracks = json.loads((o / "t.json").read_text())
+        if "note: " in stdout and tracks.get("notes"):
+            return None
+        return "no note: " + stdout.strip().splitlines()[0][:200] if stdout.strip() else "no note"
+
+    add("issue24:track", f"{LONG_FRAMES} frames, the object seen in few",
+        ["track", "{W}/tiny-20000.mp4", "--scene", "{W}/tiny-20000-scene.json", "--quiet", "--out", "{O}/t.json"],
+        expect="either", outputs=["{O}/t.json"], check=noted, timeout=600, slow=True)
+    add("issue24:experiment", f"index listing {MISSING_VIDEOS} missing videos",
+        ["experiment", "{W}/dataset-missing", "--chains", "2", "--sweeps", "2", "--quiet", "--out", "{O}/x"],
+        timeout=MISSING_TIMEOUT_S)
+    add("issue24:experiment", "SIGTERM after the first record",
+        ["experiment", "{W}/dataset3", "--chains", "2", "--sweeps", "2", "--workers", "1", "--quiet", "--out", "{O}/x"],
+        sigterm_after="{O}/x/records/*.json", timeout=300)
     return out
 
 
@@ -609,9 +696,14 @@ def run_case(i: int, c: Case, w: Path, timeout: float) -> dict:
     for t in readers:
         t.start()
     hung = False
+    timeout = c.timeout or timeout
+    signalled = False
     while True:
         if p.poll() is not None:
             break
+        if c.sigterm_after and not signalled and glob.glob(fill(c.sigterm_after, w, o)):
+            p.send_signal(signal.SIGTERM)     # the command alone, as `kill PID` does
+            signalled = True
         if serving.is_set():         # the app accepted its options and serves: stop it as Ctrl-C would
             p.send_signal(signal.SIGINT)
             try:
@@ -632,19 +724,26 @@ def run_case(i: int, c: Case, w: Path, timeout: float) -> dict:
     wall = time.monotonic() - t0
     err = "".join(err_chunks)
     lines = [ln for ln in err.splitlines() if ln.strip()]
-    prefix = f"{c.prog}: error: "
+    # the one right way to end: refused (exit 2, one line), or stopped by the SIGTERM sent (exit 143, one line)
+    code, prefix = (143, f"{c.prog}: terminated") if c.sigterm_after else (2, f"{c.prog}: error: ")
     nonfinite = [fill(f, w, o) for f in c.outputs if has_nonfinite(Path(fill(f, w, o)))]
     accepted = serving.is_set() or (p.returncode == 0 and not hung)
     left = [fill(f, w, o) for f in c.gone if Path(fill(f, w, o)).exists()]
+    problem = None
+    if c.check is not None and accepted and not nonfinite:
+        try:
+            problem = c.check(o, "".join(out_lines))
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            problem = f"its output cannot be checked ({type(e).__name__}: {e})"
     if hung and not serving.is_set():
         cls = "hang"
     elif "Traceback (most recent call last)" in err:
         cls = "traceback"
-    elif nonfinite:
+    elif nonfinite or problem:
         cls = "garbage"
     elif accepted:
-        cls = "accepted" if c.expect in ("accept", "either") and not left else "garbage"
-    elif p.returncode == 2 and len(lines) == 1 and lines[0].startswith(prefix):
+        cls = "accepted" if c.expect in ("accept", "either") and not left and not c.sigterm_after else "garbage"
+    elif p.returncode == code and len(lines) == 1 and lines[0].startswith(prefix):
         cls = "clean" if c.expect != "accept" else "wrong"
     else:
         cls = "wrong"
@@ -653,7 +752,8 @@ def run_case(i: int, c: Case, w: Path, timeout: float) -> dict:
     last = lines[-1] if lines else ""
     return {"kind": c.kind, "name": c.name, "class": cls, "rc": p.returncode, "serving": serving.is_set(),
             "wall_s": round(wall, 2), "stderr_lines": len(lines), "stderr_last": last[:300],
-            "nonfinite_outputs": nonfinite, "left_behind": left, "command": f"cd {o} && " + shlex.join(shown)}
+            "nonfinite_outputs": nonfinite, "left_behind": left, "problem": problem,
+            "command": f"cd {o} && " + shlex.join(shown)}
 
 
 def main() -> int:
@@ -661,6 +761,7 @@ def main() -> int:
     ap.add_argument("-j", "--jobs", type=int, default=2, help="cases run at once (default 2)")
     ap.add_argument("--timeout", type=float, default=60.0, help="seconds before a case counts as a hang")
     ap.add_argument("--only", help="comma-separated kinds (e.g. flags:infer,out,app)")
+    ap.add_argument("--skip-slow", action="store_true", help="leave out the cases that take minutes")
     ap.add_argument("--workdir", help="work folder (default: a new temporary one)")
     ap.add_argument("--keep", action="store_true", help="keep the work folder even when every case passes")
     ap.add_argument("--json", action="store_true", help="every case's record as JSON")
@@ -676,6 +777,8 @@ def main() -> int:
     if args.only:
         kinds = set(args.only.split(","))
         all_cases = [c for c in all_cases if c.kind in kinds or c.kind.split(":")[0] in kinds or c.kind == "control"]
+    if args.skip_slow:
+        all_cases = [c for c in all_cases if not c.slow]
     setup_s = time.monotonic() - t0
     with ThreadPoolExecutor(args.jobs) as pool:
         results = list(pool.map(lambda ic: run_case(ic[0], ic[1], w / "assets", args.timeout), enumerate(all_cases)))
@@ -703,6 +806,7 @@ def main() -> int:
                 print(f"- [{r['class']}] {r['kind']}: {r['name']} (exit {r['rc']}, {r['wall_s']} s)\n    {r['command']}"
                       f"\n    stderr: {r['stderr_last']}"
                       + (f"\n    NaN/infinity in: {', '.join(r['nonfinite_outputs'])}" if r["nonfinite_outputs"] else "")
+                      + (f"\n    wrong output: {r['problem']}" if r["problem"] else "")
                       + (f"\n    left behind: {', '.join(r['left_behind'])}" if r["left_behind"] else ""))
     if not failing and not args.keep and not args.workdir:
         import shutil

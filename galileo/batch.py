@@ -14,9 +14,11 @@
   files. Run again with the same command, videos whose record has the same key are not run
   again (a failed record is), so a killed run resumes and ends with the same report.
 * **Failures**: a video whose work raises is recorded `"status": "failed"` with its error in
-  one line, and the run goes on. A worker that dies is replaced by its nanny and its video
-  retried once (the scheduler's `allowed-failures`, WORKER_RETRIES); a second death records
-  the video as failed.
+  one line, and the run goes on. A dataset video whose files are missing or unreadable is
+  found before any work starts (a look at each file, no cluster needed: `missing_videos`) and
+  recorded failed without being run; when no video can run, the run is refused in one line. A
+  worker that dies is replaced by its nanny and its video retried once (the scheduler's
+  `allowed-failures`, WORKER_RETRIES); a second death records the video as failed.
 """
 from __future__ import annotations
 
@@ -41,6 +43,8 @@ IN_FLIGHT_PER_WORKER = 2      # videos submitted ahead per worker (memory stays 
 CONNECT_TIMEOUT_S = 10        # waiting for a scheduler given by address
 DASHBOARD = "127.0.0.1:8787"  # Dask's dashboard for a local cluster (another free port if taken)
 GRANULARITIES = ("videos", "chains")
+VIDEO_FILES = ("scene.json", "truth.json", "video.mp4")   # what each video's folder of a dataset holds
+MISSING_SHOWN = 3             # videos with missing files named in the one line that reports them
 META_KEYS = ("scenario", "dataset", "videos", "config", "granularity")   # report.json's description of a run
 # the Dask settings of the clusters made here (a running scheduler keeps its own):
 CLUSTER_CONFIG = {
@@ -82,6 +86,41 @@ def dataset_index(folder: str | Path) -> tuple[str, list[dict]]:
     if not entries:
         raise GalileoError(f"{folder / 'index.json'}: no videos")
     return scenario, entries
+
+
+def unreadable(path: Path) -> str | None:
+    """Why `path` cannot be read as a file ("not found", "is not a file", ...), or None."""
+    if not path.exists():
+        return "not found"
+    if not path.is_file():
+        return "is not a file"
+    if not os.access(path, os.R_OK):
+        return "cannot be read (no permission)"
+    return None
+
+
+def missing_videos(folder: str | Path, entries: list[dict]) -> dict[str, str]:
+    """{video: its first missing or unreadable file, as "NAME/FILE not found"} for a dataset's
+    videos (VIDEO_FILES; a look at each file, so seconds for thousands of videos: done before a
+    cluster starts). GalileoError, in one line naming the first few, when no video can run."""
+    folder = Path(folder)
+    missing = {}
+    for v in entries:
+        for f in VIDEO_FILES:
+            why = unreadable(folder / v["name"] / f)
+            if why is not None:
+                missing[v["name"]] = f"{v['name']}/{f} {why}"
+                break
+    if len(missing) == len(entries):
+        raise GalileoError(f"{folder}: none of the {len(entries)} video{'s' if len(entries) != 1 else ''} its "
+                           f"index.json lists can run: {first_few(list(missing.values()))}")
+    return missing
+
+
+def first_few(items: list[str]) -> str:
+    """`items` in a one-line message: the first MISSING_SHOWN, and how many more."""
+    more = f"; and {len(items) - MISSING_SHOWN} more" if len(items) > MISSING_SHOWN else ""
+    return "; ".join(items[:MISSING_SHOWN]) + more
 
 
 def digest(paths: list[Path], extra: Any = None) -> str:
@@ -325,6 +364,7 @@ class Job:
     args: tuple
     key: str
     stamp: dict = field(default_factory=dict)   # fields every record of it carries (e.g. its scenario)
+    error: str | None = None                    # known before it runs (a missing file): recorded failed, not run
 
 
 @dataclass
@@ -354,9 +394,16 @@ def run_jobs(client, jobs: list[Job], store: RecordStore, *, granularity: str = 
         if kept is not None:
             records[job.name] = kept
     resumed = len(records)
+    for job in jobs:
+        if job.name not in records and job.error is not None:
+            records[job.name] = {**job.stamp, "video": job.name, "status": "failed", "error": job.error, "key": job.key}
+            store.save(job.name, records[job.name])
+    failed = len(records) - resumed
     todo = [j for j in jobs if j.name not in records]
     by_key = {}
-    with tqdm(total=len(jobs), initial=resumed, desc=desc, unit="video", disable=not progress) as bar:
+    with tqdm(total=len(jobs), initial=len(records), desc=desc, unit="video", disable=not progress) as bar:
+        if failed:
+            bar.set_postfix_str(f"{failed} failed", refresh=False)
         queue = list(reversed(todo))
         running = as_completed()
 
@@ -369,7 +416,6 @@ def run_jobs(client, jobs: list[Job], store: RecordStore, *, granularity: str = 
                 running.add(f)
 
         refill()
-        failed = 0
         for f in running:
             job = by_key.pop(f.key)
             try:
@@ -391,16 +437,19 @@ def run_jobs(client, jobs: list[Job], store: RecordStore, *, granularity: str = 
 
 # -- the experiments over a dataset ---------------------------------------------------------------------
 
-def experiment_jobs(folder: Path, scenario: str, entries: list[dict], config) -> list[Job]:
+def experiment_jobs(folder: Path, scenario: str, entries: list[dict], config,
+                    missing: dict[str, str] | None = None) -> list[Job]:
+    """One job per video; those in `missing` (`missing_videos`) carry their error, not run."""
     fn = registry.get(scenario).optional_part("experiments", "run_video")
     if fn is None:
         raise GalileoError(f"scenario {scenario!r} has no experiments")
     conf = config_json(config)
+    missing = missing or {}
     jobs = []
     for v in entries:
         d = folder / v["name"]
-        key = digest([d / "scene.json", d / "truth.json", d / "video.mp4"], {"scenario": scenario, "config": conf})
-        jobs.append(Job(v["name"], fn, (d, config), key, {"scenario": scenario}))
+        key = digest([d / f for f in VIDEO_FILES], {"scenario": scenario, "config": conf})
+        jobs.append(Job(v["name"], fn, (d, config), key, {"scenario": scenario}, missing.get(v["name"])))
     return jobs
 
 
@@ -432,8 +481,9 @@ def run_experiments(folder: str | Path, config, out: str | Path, client, *, gran
     config.check()
     if recognition is not None and not (Path(recognition) / "table.md").is_file():
         raise GalileoError(f"{recognition} holds no table.md: give the --out folder of `galileo recognize eval`")
+    missing = missing_videos(folder, entries)
     store = RecordStore(out / "records")
-    jobs = experiment_jobs(folder, scenario, entries, config)
+    jobs = experiment_jobs(folder, scenario, entries, config, missing)
     done = run_jobs(client, jobs, store, granularity=granularity, progress=progress)
     summarise = registry.get(scenario).optional_part("experiments", "summarise")
     summary = summarise(done.records)

@@ -1,13 +1,15 @@
 """The pinhole camera of a video (OpenCV convention: x right, y down, z forward), shared by
-every scenario: projection, back-projection, JSON."""
+every scenario: projection, back-projection, JSON, whether it sees a scene, and the physics
+rate its frame rate steps evenly."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Iterable
 
 import numpy as np
 
-from .errors import SceneError
+from .errors import GalileoError, SceneError
 from .fields import Bound, matrix, number, show, unknown_fields
 
 
@@ -84,7 +86,7 @@ IMAGE_SIDE_PX = Bound(16, 16384, integer=True)   # width and height: 16 px (less
 # 16384 px (about twice 8K video's width; the tracker holds whole frames in memory)
 FPS = Bound(1.0, 1000.0)                        # frames a second: at least 1 (frames further apart show no motion
 # to take a velocity from, and a frame would be up to sim_hz physics steps), at most 1000 (a high-speed camera;
-# sim_hz is a multiple of it)
+# the physics rate is a multiple of it: physics_hz)
 N_FRAMES = Bound(1, 100_000, integer=True)       # 100000 frames: 55 min at 30 fps (an experiment lasts seconds);
 # the trajectories and tracks hold every frame in memory
 FOCAL_PX = Bound(1.0, 1e5)                       # a focal length below 1 px sees more than 179 degrees (no
@@ -160,19 +162,81 @@ def camera_from_json(d: dict, path: str = "camera") -> Camera:
     return cam
 
 
+# -- the physics rate a video's frame rate steps evenly ---------------------------------------------
+# Physics runs a whole number of steps per video frame everywhere (the simulation is sampled at
+# frame f = step f x steps_per_frame), so the rate must be a multiple of the camera's fps. A
+# scene asks for `sim_hz` (240 by default); a scene with a camera steps at physics_hz(sim_hz,
+# fps), the multiple of fps nearest it: 240 Hz stays 240 at 30, 60 or 120 fps and becomes
+# 250 Hz at 25 fps (PAL, 10 steps a frame), 239.76 Hz at 29.97 fps (NTSC, 8 steps) and
+# 237.6 Hz at 29.7 fps (a phone clip of Physics 101). The rate moves by at most fps / 2 (steps
+# 4% shorter at 25 fps), which Bullet's contacts take as they take 240 Hz. The scenes apply it
+# where they are validated, so old scene files load as they did and a loaded scene's sim_hz is
+# the rate it runs at (and is written back as such).
+
+STEPS_EXACT = 1e-9   # sim_hz / fps within this of a whole number is a whole number of steps a frame
+
+
+def steps_per_frame(sim_hz: float, fps: float) -> int:
+    """Physics steps per video frame: sim_hz / fps, a whole number at the rate physics_hz gives."""
+    return max(1, round(sim_hz / fps))
+
+
+def physics_hz(sim_hz: float, fps: float, bound: Bound | None = None) -> float:
+    """The physics rate for a video at `fps`: `sim_hz` itself when it is a multiple of fps,
+    else the multiple of fps nearest it (inside `bound`, the scenario's sim_hz bound, where one
+    of the two nearest is). See above."""
+    ratio = sim_hz / fps
+    if abs(ratio - round(ratio)) <= STEPS_EXACT:
+        return sim_hz
+    below = max(1, math.floor(ratio))
+    for k in sorted((below, below + 1), key=lambda k: abs(k * fps - sim_hz)):
+        if bound is None or bound.contains(k * fps):
+            return k * fps
+    return below * fps
+
+
 def check_run(sim_hz: float, fps: float, n_frames: int, max_steps: int, start_step: int = 0,
               names: tuple[str, str] = ("camera.fps", "camera.n_frames")) -> None:
     """SceneError unless a video of `n_frames` at `fps` can be simulated at `sim_hz`: fps in
-    FPS, n_frames in N_FRAMES, sim_hz a multiple of fps, and at most `max_steps` physics steps
-    in all (`start_step` of them before frame 0). `names` name fps and n_frames in messages
-    (the scene file's fields, or a command's flags)."""
+    FPS, n_frames in N_FRAMES, sim_hz a multiple of fps (a scene's own camera always is, at
+    physics_hz; a run at another fps need not be), and at most `max_steps` physics steps in all
+    (`start_step` of them before frame 0). `names` name fps and n_frames in messages (the scene
+    file's fields, or a command's flags)."""
     fps_name, frames_name = names
     FPS.check(fps, fps_name)
     N_FRAMES.check(n_frames, frames_name)
     spf = sim_hz / fps
-    if abs(spf - round(spf)) > 1e-9:
+    if abs(spf - round(spf)) > STEPS_EXACT:
         raise SceneError(f"sim_hz ({sim_hz:g}) must be a multiple of {fps_name} ({fps:g})")
     steps = int(start_step + (n_frames - 1) * round(spf))
     if steps > max_steps:
         raise SceneError(f"{frames_name}: {n_frames} frames at {fps:g} fps are {steps} physics steps at "
                          f"sim_hz {sim_hz:g}, more than {max_steps} (shorten the video or lower sim_hz)")
+
+
+# -- what the camera sees ----------------------------------------------------------------------
+
+def check_sees(cam: Camera, parts: dict[str, np.ndarray]) -> None:
+    """GalileoError, before any tracking, when the camera sees none of the scene: of no part
+    (name -> world points (N, 3): the corners of the ramp's surface or of the tank, where the
+    objects start) does the box around the image points of those in front of the camera overlap
+    the image. Such a camera (an identity world_to_camera stands at the world's origin looking
+    along +z, straight up) would track nothing and report every object unseen."""
+    r, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
+    for pts in parts.values():
+        pc = np.reshape(pts, (-1, 3)) @ r.T + t
+        pc = pc[pc[:, 2] > 0]          # (behind the camera or level with it: nowhere in the image)
+        if len(pc):
+            uvw = pc @ cam.K.T
+            uv = uvw[:, :2] / uvw[:, 2:]
+            if (uv.max(axis=0) >= 0).all() and uv[:, 0].min() < cam.width_px and uv[:, 1].min() < cam.height_px:
+                return
+    pos, ahead = cam.position_in_world, r[2]
+    raise GalileoError(f"the camera sees none of the scene ({', '.join(parts)}: all behind it or outside its "
+                       f"{cam.width_px}x{cam.height_px} image; it stands at {_xyz(pos)} m looking along "
+                       f"{_xyz(ahead)}): check camera.world_to_camera, the transform from world to camera "
+                       "(x right, y down, z forward)")
+
+
+def _xyz(v: np.ndarray) -> str:
+    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"

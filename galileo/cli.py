@@ -295,6 +295,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         n = frame_count(timing[1], f"the scene's video ({timing[1]} frames; give --frames)")
     else:
         n = int(round(2.0 * fps)) + 1
+    if args.fps is not None and hasattr(scene, "sim_hz"):   # any frame rate: a whole number of steps a frame
+        import dataclasses
+
+        from .camera import physics_hz
+
+        scene = dataclasses.replace(scene, sim_hz=physics_hz(scene.sim_hz, fps))
     check = getattr(scene, "check_simulation", None)    # (optional in a scenario's scene: ramp and splash have it)
     if check is not None:
         check(n, fps, ("--fps", "--frames"))    # sim_hz a multiple of fps; at most MAX_STEPS physics steps
@@ -447,7 +453,7 @@ def checked_settings(cfg, scenario, scene):
     move, as a width of 0 makes chains that accept everything)."""
     latents = scenario.latents(scene)
     try:
-        settings = cfg.settings(latents, scenario.noise)
+        settings = cfg.settings(latents, scenario.noise, scenario.paper_widths)
     except ValueError as e:
         raise GalileoError(str(e)) from None
     for flag, given, w in (("--narrow", cfg.narrow, settings.narrow), ("--broad", cfg.broad, settings.broad)):
@@ -514,7 +520,7 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     from . import batch, registry
     from .runner import RunConfig
 
-    scenario, _ = batch.dataset_index(args.dataset)
+    scenario, entries = batch.dataset_index(args.dataset)
     if registry.get(scenario).optional_part("experiments", "run_video") is None:
         raise GalileoError(f"{Path(args.dataset) / 'index.json'}: no experiments for scenario {scenario!r}")
     protocol = registry.get(scenario).protocol
@@ -523,6 +529,10 @@ def cmd_experiment(args: argparse.Namespace) -> int:
                     seed=args.seed, workers=1, moves=args.moves, priors=priors_arg(args.priors))
     cfg.check()
     batch.out_folder(Path(args.out))      # before a cluster starts
+    missing = batch.missing_videos(args.dataset, entries)    # refused here, in seconds, when no video can run
+    if missing:
+        print(f"galileo: warning: {len(missing)} of {len(entries)} videos lack a file and are recorded as failed "
+              f"without running: {batch.first_few(list(missing.values()))}", file=sys.stderr)
     slurm = slurm_arg(args.slurm)
     log = (lambda m: print(m, file=sys.stderr)) if not args.quiet else None
     with batch.open_client(args.workers, args.scheduler, slurm, log=log) as client:
@@ -636,6 +646,10 @@ def cmd_scene(args: argparse.Namespace) -> int:
     if args.start_m is None:
         print(f"object found in the first frame, {scene.start_distance_m():.2f} m up the ramp (give --start-m to "
               "override)")
+    from .camera import steps_per_frame
+
+    print(f"physics at {scene.sim_hz:.6g} Hz: {steps_per_frame(scene.sim_hz, cam.fps)} steps a frame at "
+          f"{cam.fps:.4g} fps")
     return 0
 
 

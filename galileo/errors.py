@@ -13,12 +13,29 @@ class StillVideo(GalileoError):
     """The tracker sees nothing move in a video (evidence in itself, but nothing to track)."""
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (`kill`, a batch system's time limit, `timeout`): raised in the main thread so
+    that it stops the work as Ctrl-C does (what Ctrl-C's KeyboardInterrupt closes and keeps,
+    it closes and keeps), where the signal's default would end the process at once, silently,
+    leaving its workers to the system."""
+
+
+def _terminated(signum, frame):
+    raise Terminated()
+
+
 def run_reporting_errors(prog: str, fn) -> int:
     """`fn()`'s exit code; a GalileoError (or a system call's OSError: a file refused) becomes
-    one line `prog: error: ...` on stderr and exit code 2, Ctrl-C exit code 130 (for the CLI,
-    the app and the bench scripts)."""
+    one line `prog: error: ...` on stderr and exit code 2, Ctrl-C one line `prog: interrupted`
+    and exit code 130, SIGTERM (while `fn` runs in the main thread) one line `prog: terminated`
+    and exit code 143 (128 + 15, as the shell reports a process it ended) (for the CLI, the app
+    and the bench scripts)."""
+    import signal
     import sys
+    import threading
 
+    main = threading.current_thread() is threading.main_thread()
+    before = signal.signal(signal.SIGTERM, _terminated) if main else None
     try:
         return int(fn() or 0)
     except GalileoError as e:
@@ -36,6 +53,12 @@ def run_reporting_errors(prog: str, fn) -> int:
             where = f"{e.filename}: " if e.filename is not None else ""
         print(f"{prog}: error: {where}{e.strerror or e}", file=sys.stderr)
         return 2
+    except Terminated:
+        print(f"{prog}: terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if main:
+            signal.signal(signal.SIGTERM, before if before is not None else signal.SIG_DFL)

@@ -25,10 +25,13 @@ def _default(obj: Any) -> Any:
     raise TypeError(f"cannot serialise {type(obj).__name__} to JSON")
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """Write `data` to `path` so that a crash leaves either the old or the new file."""
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, make_parents: bool = True) -> None:
+    """Write `data` to `path` so that a crash leaves either the old or the new file. Without
+    `make_parents` a missing folder is an error, never made (a session folder deleted under a
+    running app must not come back half-written)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    if make_parents:
+        path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
@@ -43,14 +46,14 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         raise
 
 
-def write_json(path: str | os.PathLike, obj: Any, *, indent: int | None = 1) -> None:
+def write_json(path: str | os.PathLike, obj: Any, *, indent: int | None = 1, make_parents: bool = True) -> None:
     """`obj` as JSON, atomically. A NaN or infinity is refused (GalileoError): JSON has none,
     and a file that holds one is no result."""
     try:
         text = json.dumps(obj, indent=indent, default=_default, allow_nan=False)
     except ValueError as e:
         raise GalileoError(f"not writing {path}: a value is not a finite number ({e})") from None
-    atomic_write_bytes(path, (text + "\n").encode())
+    atomic_write_bytes(path, (text + "\n").encode(), make_parents=make_parents)
 
 
 def read_json(path: str | os.PathLike, what: str = "file") -> Any:

@@ -107,6 +107,12 @@ class Scenario(ABC):
     # settings of the scene file's "priors" section that make the paper's own likelihood, used
     # with `--moves paper` (the paper's whole protocol) where the scenario's defaults differ
     paper_priors: dict = {}
+    # the paper's proposal half-widths {latent: (narrow, broad)} where the latents' own (the
+    # default move set's starting widths, adapted in warm-up) differ: used with `--moves paper`
+    paper_widths: dict = {}
+    # where chains start unless the recognition model starts them (`initial_positions`), in words
+    # for the app's Chains panel
+    starts_doc: str = "drawn from the prior"
     # the scenario's package: by default its `scene` module parses and makes scenes
     # (`scene_from_json`, `default_scene`) and its `tracking` module tracks (`track`)
     package: str = ""

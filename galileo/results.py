@@ -267,8 +267,11 @@ def warning_of(verdict: dict) -> str | None:
 def derived_summaries(scenario, scene, names: Sequence[str], rows) -> dict[str, dict]:
     """Posterior summaries of `scenario.derived` over draws `rows` (each a latent vector in
     `names` order): per quantity defined and finite at every draw, its summary, and its log's
-    (`log_<name>`) when it is positive throughout."""
+    (`log_<name>`) when it is positive throughout. A quantity that stays the same while the
+    draws vary (the splash's volume: the scene's, not inferred) is marked `"fixed": true`, and
+    has no log: it is not a posterior."""
     rows = [np.asarray(r, float) for r in rows]
+    draws_vary = len(rows) > 1 and bool(np.ptp(np.stack(rows), axis=0).max() > 0)
     values: dict[str, list] = {}
     for row in rows:
         for k, v in scenario.derived(scene, dict(zip(names, map(float, row)))).items():
@@ -280,7 +283,9 @@ def derived_summaries(scenario, scene, names: Sequence[str], rows) -> dict[str, 
         if len(x) != len(rows) or not np.all(np.isfinite(x)):
             continue
         out[k] = _summary(x)
-        if np.all(x > 0):
+        if draws_vary and np.ptp(x) == 0:
+            out[k]["fixed"] = True
+        elif np.all(x > 0):
             out[f"log_{k}"] = _summary(np.log(x))
     return out
 

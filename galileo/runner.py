@@ -20,9 +20,12 @@ converged, the controller's rounds) is the same chain.
 Executors: anything with `map(fn, iterable)` (results in order). `LocalPool` (forked worker
 processes, each with its own pybullet client; a likelihood is built once per worker and
 problem) is the default; `workers=1` runs in this process. A Dask client fits the same slot.
+A LocalPool worker that dies raises `WorkerDied`; one that stops answering, `WorkerHung` once a
+map's deadline (`timeout_s`) has passed (its workers are then killed).
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -46,6 +49,8 @@ from .results import MIN_ESS, RHAT_TARGET, InferenceResult, convergence, kept_dr
 
 MOVE_SETS = ("default", "paper")
 UNTIL_WARMUP_SWEEPS = 100
+PROGRESS_PIECE_S = 2.0   # with a progress bar, `infer` runs each chain in pieces of about this long
+SHUTDOWN_GRACE_S = 10.0  # how long LocalPool.shutdown waits for a worker to exit before it kills it
 
 def initial_positions(bounds: np.ndarray, n_chains: int, seed: int) -> np.ndarray:
     """Chain starts drawn uniformly from the prior (reproducible from the seed)."""
@@ -69,7 +74,12 @@ class Settings:
     integer_sites: tuple[int, ...] = ()   # which latents take integer values (set by `checked`)
 
     @classmethod
-    def default(cls, latents: Sequence[Latent], noise: Noise) -> "Settings":
+    def default(cls, latents: Sequence[Latent], noise: Noise, widths: dict | None = None) -> "Settings":
+        """The latents' bounds and widths and the noise's default; `widths` {latent: (narrow,
+        broad)} replaces some latents' widths (a scenario's `paper_widths` under `--moves paper`)."""
+        if widths:
+            latents = [dataclasses.replace(lat, narrow=widths[lat.name][0], broad=widths[lat.name][1])
+                       if lat.name in widths else lat for lat in latents]
         narrow, broad = default_widths(latents)
         return cls({lat.name: tuple(lat.bounds) for lat in latents}, noise.default, narrow, broad, 20, noise)
 
@@ -167,8 +177,10 @@ class RunConfig:
     def sweep_budget(self) -> int:
         return int(self.max_sweeps if self.max_sweeps is not None else max(self.sweeps, 20 * self.sweeps))
 
-    def settings(self, latents: Sequence[Latent], noise: Noise) -> Settings:
-        s = Settings.default(latents, noise)
+    def settings(self, latents: Sequence[Latent], noise: Noise, paper_widths: dict | None = None) -> Settings:
+        """The settings the chains start under: the latents' own, with `paper_widths` (the
+        scenario's) under the paper's moves, then this config's overrides."""
+        s = Settings.default(latents, noise, paper_widths if self.moves == "paper" else None)
         if self.noise is not None:
             s.noise = self.noise
         for name in ("narrow", "broad", "broad_every"):
@@ -330,6 +342,15 @@ class WorkerDied(GalileoError):
     """A worker process of a LocalPool died (the pool is broken and must be made anew)."""
 
 
+class WorkerHung(WorkerDied):
+    """No result from a LocalPool's workers within a map's deadline (a worker stopped, or stuck):
+    its workers were killed, so the pool is broken like a dead worker's. `timeout_s`: the deadline."""
+
+    def __init__(self, message: str, timeout_s: float):
+        super().__init__(message)
+        self.timeout_s = timeout_s
+
+
 class InProcess:
     """The executor of `workers=1`: tasks run here, one after another (starting, like a new
     pool, without likelihoods kept from earlier runs)."""
@@ -365,14 +386,18 @@ class LocalPool:
             self._pool.shutdown(wait=True, cancel_futures=True)
             raise WorkerDied(f"inference workers failed to start: {e}") from None
         self._procs = dict(self._pool._processes)   # pid -> Process (kept: a broken pool forgets them)
+        self._hung: list[dict] | None = None           # the workers blamed when a map passed its deadline
 
     def pids(self) -> list[int]:
         """The worker processes' ids."""
         return sorted(self._procs)
 
-    def map(self, fn, iterable: Iterable):
+    def map(self, fn, iterable: Iterable, timeout_s: float | None = None):
+        """`fn` over `iterable` in the workers, results in order. WorkerDied when a worker dies;
+        WorkerHung when not every result has come `timeout_s` after the first is asked for (the
+        workers are then killed: one that stopped or is stuck would otherwise hold the pool)."""
         try:
-            yield from self._pool.map(fn, iterable)
+            yield from self._pool.map(fn, iterable, timeout=timeout_s)
         except BrokenProcessPool:
             self._pool.shutdown(wait=True, cancel_futures=True)   # the others are stopped; states known
             dead = self.dead_workers()
@@ -380,12 +405,45 @@ class LocalPool:
             if any(w["how"] == "killed by SIGKILL" for w in dead):
                 said += " (the system's out-of-memory killer sends SIGKILL: fewer --workers use less memory)"
             raise WorkerDied(f"an inference worker died: {said}") from None
+        except TimeoutError:
+            self._hung = self._unresponsive()
+            self._kill()
+            said = "; ".join(f"pid {w['pid']} {w['how']}" for w in self._hung)
+            raise WorkerHung(f"no result from the inference workers in {timeout_s:.0f} s ({said}): "
+                             "they were killed", timeout_s) from None
+
+    def _unresponsive(self) -> list[dict]:
+        """The workers to blame for a map past its deadline, as `dead_workers` lists them: those
+        stopped (SIGSTOP, a debugger), else those busy, else every one."""
+        import psutil
+
+        def state(pid):
+            try:
+                return psutil.Process(pid).status()
+            except psutil.Error:
+                return "gone"
+        states = {pid: state(pid) for pid in sorted(self._procs)}
+        stopped = [pid for pid, st in states.items() if st in (psutil.STATUS_STOPPED, psutil.STATUS_TRACING_STOP)]
+        busy = [pid for pid, st in states.items() if st in (psutil.STATUS_RUNNING, psutil.STATUS_DISK_SLEEP)]
+        how = "stopped" if stopped else "not answering"
+        return [{"pid": pid, "exitcode": None, "how": how} for pid in (stopped or busy or sorted(states))]
+
+    def _kill(self) -> None:
+        """SIGKILL every worker (a stopped one too) and shut the broken pool down."""
+        for p in self._procs.values():
+            if p.exitcode is None:
+                p.kill()
+        self._pool.shutdown(wait=True, cancel_futures=True)
 
     def dead_workers(self) -> list[dict]:
         """After a `WorkerDied` and `shutdown`: the workers that died of their own, as
         {"pid", "exitcode", "how"} (the pool terminates the others with SIGTERM; a worker that
-        was itself sent SIGTERM is among them, so with none found every worker is listed)."""
+        was itself sent SIGTERM is among them, so with none found every worker is listed);
+        after a `WorkerHung`, those blamed for it ("stopped" or "not answering")."""
         import signal
+
+        if self._hung is not None:
+            return list(self._hung)
 
         def how(code):
             if code is None:
@@ -401,7 +459,15 @@ class LocalPool:
         return own or every
 
     def shutdown(self) -> None:
-        self._pool.shutdown(wait=True, cancel_futures=True)
+        """Let the workers finish and exit; any that has not within SHUTDOWN_GRACE_S (stopped,
+        stuck) is killed, so closing never hangs on one."""
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        deadline = time.monotonic() + SHUTDOWN_GRACE_S
+        for p in self._procs.values():
+            p.join(max(0.0, deadline - time.monotonic()))
+            if p.exitcode is None:
+                p.kill()
+        self._pool.shutdown(wait=True)
 
 
 def local_executor(workers: int | None, n_tasks: int | None = None):
@@ -431,7 +497,8 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
     what they have done (at least 25), until every latent's rank-normalised split R-hat is at
     most `until_rhat` and its bulk and tail ESS at least `min_ess`, or until `max_sweeps`.
     A chain's draws depend only on (seed, chain, settings): how the sweeps are cut into blocks
-    does not change them.
+    does not change them. With `progress`, the bar counts sweeps as they are done: each chain's
+    sweeps run in pieces of about PROGRESS_PIECE_S (`_run_block`), the same chains.
 
     `init(prepared_scene, names, bounds, n_chains, seed, integer_sites) -> Init` may choose
     where the chains start and add an independence move (`galileo.recognition.model.recognition_init`);
@@ -445,7 +512,7 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
     latents = scenario.latents(prepared)
     names = tuple(lat.name for lat in latents)
     try:
-        settings = cfg.settings(latents, scenario.noise)
+        settings = cfg.settings(latents, scenario.noise, scenario.paper_widths)
     except ValueError as e:
         raise GalileoError(str(e)) from None
     bounds = settings.bounds_array(names)
@@ -473,9 +540,7 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
         with tqdm(total=cfg.chains * cfg.sweeps, desc="sweeps" if cfg.until_rhat else "chains",
                   unit="sweep", unit_scale=False, disable=not progress) as bar:
             while True:
-                for r in executor.map(run_task, tasks):
-                    done[r["chain"]].append(r)
-                    bar.update(len(r["logliks"]))
+                _run_block(executor, tasks, done, bar, piecewise=progress)
                 n_done = int(done[0][-1]["sweep"])
                 if not cfg.until_rhat:
                     break
@@ -510,6 +575,29 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
 
 MIN_BLOCK_SWEEPS = 25
 JOINT_LOG_SD = 0.3
+
+
+def _run_block(executor, tasks: list[ChainTask], done: list[list[dict]], bar, piecewise: bool) -> None:
+    """Run the tasks (one per chain, the same sweeps each), appending each chain's records to
+    done[chain] and moving the bar. `piecewise` (a bar is shown): in pieces of sweeps, the first
+    one sweep, then each sized to take about PROGRESS_PIECE_S by the last piece's slowest sweep,
+    so that the bar moves (as each piece ends) however long a chain is. A chain's draws do not
+    depend on how its sweeps are cut (`next_task`): the chains are the same bit for bit."""
+    left = tasks[0].n_sweeps
+    n = 1 if piecewise else left
+    current = list(tasks)
+    while True:
+        n = min(n, left)
+        slowest_s = 0.0
+        for r in executor.map(run_task, [t._replace(n_sweeps=n) for t in current]):
+            done[r["chain"]].append(r)
+            bar.update(len(r["logliks"]))
+            slowest_s = max(slowest_s, float(r["seconds"]) / n)
+        left -= n
+        if not left:
+            return
+        current = [next_task(t, done[t.chain][-1], n) for t in current]
+        n = max(1, int(PROGRESS_PIECE_S / slowest_s)) if slowest_s > 0 else left
 
 
 def scene_for_moves(scene, moves: str, priors: dict | None = None):

@@ -5,7 +5,10 @@ H.264, so all video I/O goes through PyAV.
 """
 from __future__ import annotations
 
+import operator
 import os
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -69,18 +72,23 @@ def _open(path: str | os.PathLike):
     return box
 
 
-def read_frames(path: str | os.PathLike, fmt: str = "rgb24") -> Iterator[np.ndarray]:
-    """Decoded frames as uint8 arrays (H, W, 3) for rgb24/bgr24, (H, W) for gray,
-    (H * 3 / 2, W) for yuv420p (the Y plane, then U and V at half resolution)."""
+def _decoded(path: str | os.PathLike) -> Iterator["av.VideoFrame"]:
+    """The video stream's frames as PyAV decodes them, in presentation order."""
     box = _open(path)
     try:
         box.streams.video[0].thread_type = "AUTO"
-        for frame in box.decode(video=0):
-            yield frame.to_ndarray(format=fmt)
+        yield from box.decode(video=0)
     except av.error.FFmpegError as e:
         raise GalileoError(f"video {path} is corrupt: {e}") from None
     finally:
         box.close()
+
+
+def read_frames(path: str | os.PathLike, fmt: str = "rgb24") -> Iterator[np.ndarray]:
+    """Decoded frames as uint8 arrays (H, W, 3) for rgb24/bgr24, (H, W) for gray,
+    (H * 3 / 2, W) for yuv420p (the Y plane, then U and V at half resolution)."""
+    for frame in _decoded(path):
+        yield frame.to_ndarray(format=fmt)
 
 
 def _rate(stream) -> float | None:
@@ -153,7 +161,8 @@ def check_length(path: str | os.PathLike, n_frames: int, camera) -> None:
 
 
 def read_video(path: str | os.PathLike, fmt: str = "rgb24") -> tuple[np.ndarray, VideoInfo]:
-    """All frames (n, H, W[, 3]) and the stream's properties."""
+    """All frames (n, H, W[, 3]) and the stream's properties (a short video's: n x H x W x 3
+    bytes; the trackers stream a video with VideoStream, the viewer reads it with VideoFrames)."""
     fps, _, _ = _stream_info(path)
     frames = list(read_frames(path, fmt))
     if not frames:
@@ -162,44 +171,224 @@ def read_video(path: str | os.PathLike, fmt: str = "rgb24") -> tuple[np.ndarray,
     return arr, VideoInfo(arr.shape[2], arr.shape[1], fps, len(frames))
 
 
+# -- a video frame by frame, pass after pass ----------------------------------------------------
+# The trackers never hold a whole video: a 1440x1080 frame is 2.3 MB of planes, a minute of
+# it at 30 fps 4.2 GB. They decode it once to learn their background models (keeping a few
+# frames) and again to track (keeping the previous frame), so that memory depends neither on a
+# video's length nor, beyond a frame or two, on its size. (A short video, at most KEEP_BYTES
+# decoded, is kept by the first pass instead of decoded again: the demo's 61 frames, 28 MB.)
+#
+# A video's frames are timed as frame f at f / fps everywhere (velocities are differences
+# times fps), which a constant-frame-rate video is. Phones record at a variable rate
+# (frames come late in dim light, some are dropped); the container stamps each frame with
+# its time, and a pass compares those stamps with f / fps: a video whose frames stray more
+# than TIMING_TOLERANCE_FRAMES of a frame interval from f / fps gets a note saying where
+# and how far (`VideoStream.timing_note`), for the tracks to carry.
+
+TIMING_TOLERANCE_FRAMES = 0.5   # half a frame: stamps rounded to the container's clock stay far inside it
+KEEP_BYTES = 96 * 2 ** 20       # a video decoded into at most this much is kept between passes, not decoded again
+
+
+class VideoStream:
+    """A video read frame by frame, as many passes as the reader needs.
+
+    Opening checks what can be checked before decoding: the file opens, has a video stream
+    of even size (PyAV decodes yuv420p only then) and, with a `camera`, is the video the
+    camera describes (`check_stream`). The first pass that runs to its end checks the length:
+    at least `min_frames` frames (a tracker's minimum), and with a camera exactly
+    camera.n_frames (`check_length`; a longer video's extra frames are counted, not
+    yielded); it also records the frames' time stamps (`timing_note`). A video whose decoded
+    frames take at most `keep_bytes` (KEEP_BYTES: 218 frames of 640x480) is kept by that pass
+    and replayed by the next ones instead of decoded again; a longer one is never held.
+    """
+
+    def __init__(self, path: str | os.PathLike, camera=None, min_frames: int = 1, keep_bytes: int | None = None):
+        self.path, self.camera, self.min_frames = path, camera, min_frames
+        self.keep_bytes = KEEP_BYTES if keep_bytes is None else keep_bytes
+        self.fps, self.width_px, self.height_px = _stream_info(path)
+        if self.width_px % 2 or self.height_px % 2:  # (PyAV cannot decode such a stream to yuv420p)
+            raise GalileoError(f"video {path} has odd dimensions {self.width_px}x{self.height_px}")
+        if camera is not None:
+            check_stream(path, camera)
+        self.n_frames: int | None = None          # known once a pass has run to the end
+        self.times_s: np.ndarray | None = None    # the frames' time stamps (None where the container has none)
+        self._kept: list[np.ndarray] | None = None   # a short video's frames (yuv420p), from the first pass
+
+    def yuv(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """One pass: each frame's luma (H, W) and chroma (H/2, W/2, 2, U then V) planes, as
+        H.264 stores them (yuv420p: no colour conversion; the luma is the grey image trackers
+        want, the chroma already at the half resolution background models run at). The
+        planes are read-only."""
+        frames = self._kept if self._kept is not None else self._decode()
+        for f in frames:
+            h, w = f.shape[0] * 2 // 3, f.shape[1]
+            u = f[h:h + h // 4].reshape(h // 2, w // 2)
+            v = f[h + h // 4:].reshape(h // 2, w // 2)
+            uv = np.stack([u, v], axis=-1)
+            uv.flags.writeable = False
+            yield f[:h], uv
+
+    def _decode(self) -> Iterator[np.ndarray]:
+        """The frames (yuv420p, (H * 3 / 2, W)) decoded; the first pass to its end checks them."""
+        limit = int(self.camera.n_frames) if self.camera is not None else None
+        count, times, size = 0, [], 0
+        kept = [] if self.n_frames is None else None
+        for frame in _decoded(self.path):
+            count += 1
+            times.append(frame.time)
+            if limit is not None and count > limit:   # too long: count the rest, yield none of it
+                continue
+            f = frame.to_ndarray(format="yuv420p")
+            f.flags.writeable = False
+            if kept is not None:
+                size += f.nbytes
+                kept = kept if size <= self.keep_bytes else None
+                if kept is not None:
+                    kept.append(f)
+            yield f
+        if self.n_frames is None:
+            self._first_pass_done(count, times)
+            self._kept = kept
+
+    def _first_pass_done(self, count: int, times: list) -> None:
+        if not count:
+            raise GalileoError(f"video {self.path} has no decodable frames")
+        if count < self.min_frames:
+            raise GalileoError(f"video {self.path} has only {count} frame{'' if count == 1 else 's'}: need at "
+                               f"least {self.min_frames} to see motion")
+        if self.camera is not None:
+            check_length(self.path, count, self.camera)
+        self.n_frames = count
+        self.times_s = None if None in times else np.array(times, float)
+
+    def timing_note(self) -> str | None:
+        """A line saying that the frames' time stamps stray from f / fps (a variable frame
+        rate), where and by how much; None if they keep to it (or carry no stamps, or no pass
+        has run to the end yet)."""
+        if self.times_s is None or len(self.times_s) < 2:
+            return None
+        fps = float(self.camera.fps) if self.camera is not None else self.fps   # the rate frames are timed by
+        t = self.times_s - self.times_s[0]
+        off = t * fps - np.arange(len(t))     # in frame intervals
+        worst = int(np.argmax(np.abs(off)))
+        if abs(off[worst]) <= TIMING_TOLERANCE_FRAMES:
+            return None
+        gaps_ms = np.diff(t) * 1e3
+        return (f"the video's frames are not evenly timed (a variable frame rate, as phones record): frame {worst} "
+                f"is stamped {t[worst]:.3f} s but is taken as {worst / fps:.3f} s ({abs(off[worst]):.1f} frames "
+                f"off; frames {gaps_ms.min():.1f}-{gaps_ms.max():.1f} ms apart, not {1e3 / fps:.1f}), so "
+                f"velocities near it are off too; re-encode it at a constant rate (ffmpeg -i IN -vf "
+                f"fps={fps:.5g} OUT.mp4) and make its scene file again")
+
+
 def read_video_yuv(path: str | os.PathLike, camera=None,
                    min_frames: int = 1) -> tuple[np.ndarray, np.ndarray, VideoInfo]:
-    """Luma (n, H, W) and chroma (n, H/2, W/2, 2) planes without a colour conversion.
+    """All frames' luma (n, H, W) and chroma (n, H/2, W/2, 2) planes (VideoStream's, held:
+    for short videos and benchmarks)."""
+    video = VideoStream(path, camera, min_frames)
+    ys, uvs = zip(*video.yuv())
+    return np.stack(ys), np.stack(uvs), VideoInfo(video.width_px, video.height_px, video.fps, len(ys))
 
-    H.264 stores yuv420p: the luma plane is the grey image trackers want and the chroma
-    planes are already at the half resolution background subtraction runs at. A video of
-    fewer than `min_frames` frames is refused (a tracker's minimum). With a `camera`, the
-    video must be the one it describes (`check_stream`, `check_length`: VideoMismatch
-    otherwise); its size and rate are checked before decoding, and the frames of a video
-    longer than the camera's are counted, not kept.
+
+# -- the viewer's frames ------------------------------------------------------------------------
+
+DISPLAY_MAX_WIDTH_PX = 1920        # the viewer shows frames at most this wide (a full-HD screen)
+FRAME_CACHE_BYTES = 128 * 2 ** 20  # decoded frames kept for scrubbing (all of a 640x480 demo's 61 frames)
+DECODE_ON_FRAMES = 60              # a frame at most this far ahead is decoded on to, a farther one sought
+
+
+class VideoFrames:
+    """A video's RGB frames by index, for the viewer: `len(frames)`, `frames[i]` -> (H, W, 3)
+    uint8 (read-only), decoded on demand and shrunk to at most `max_width_px` wide; `fps`,
+    `width_px`, `height_px` are those of the frames it gives.
+
+    Frame i is the i-th frame in presentation order, as every pass over the video counts
+    them (the frames' time stamps are indexed from the packets when it opens, without
+    decoding). Playing forwards decodes each frame once; a jump back or far ahead seeks to
+    the key frame before it and decodes from there. Frames decoded on the way are kept, the
+    least recently used dropped beyond `cache_bytes`. One decoder behind a lock: any thread
+    may ask. `close()` ends it (so does garbage collection).
     """
-    fps, width, height = _stream_info(path)
-    if width % 2 or height % 2:  # (PyAV cannot decode such a stream to yuv420p)
-        raise GalileoError(f"video {path} has odd dimensions {width}x{height}")
-    if camera is not None:
-        check_stream(path, camera)
-    ys, uvs = [], []
-    limit = int(camera.n_frames) if camera is not None else None
-    count = 0
-    for f in read_frames(path, "yuv420p"):
-        count += 1
-        if limit is not None and count > limit:   # too long: count the rest, keep none of it
-            continue
-        h = f.shape[0] * 2 // 3
-        w = f.shape[1]
-        ys.append(f[:h])
-        u = f[h:h + h // 4].reshape(h // 2, w // 2)
-        v = f[h + h // 4:].reshape(h // 2, w // 2)
-        uvs.append(np.stack([u, v], axis=-1))
-    if not ys:
-        raise GalileoError(f"video {path} has no decodable frames")
-    if count < min_frames:
-        raise GalileoError(f"video {path} has only {count} frame{'' if count == 1 else 's'}: need at least "
-                           f"{min_frames} to see motion")
-    if camera is not None:
-        check_length(path, count, camera)
-    y = np.stack(ys)
-    return y, np.stack(uvs), VideoInfo(y.shape[2], y.shape[1], fps, len(ys))
+
+    def __init__(self, path: str | os.PathLike, max_width_px: int | None = DISPLAY_MAX_WIDTH_PX,
+                 cache_bytes: int = FRAME_CACHE_BYTES):
+        self.path = path
+        self._box = box = _open(path)
+        self._stream = stream = box.streams.video[0]
+        try:
+            pts = [p.pts for p in box.demux(stream) if p.size and not p.is_discard]
+        except av.error.FFmpegError as e:
+            box.close()
+            raise GalileoError(f"video {path} is corrupt: {e}") from None
+        if not pts:
+            box.close()
+            raise GalileoError(f"video {path} has no decodable frames")
+        self._n = len(pts)
+        # the frames' time stamps in order; without them frames are counted from the start
+        self._pts = None if None in pts else sorted(pts)
+        self._index_of = {} if self._pts is None else {p: i for i, p in enumerate(self._pts)}
+        stream.thread_type = "AUTO"
+        w, h = int(stream.codec_context.width), int(stream.codec_context.height)
+        scale = min(1.0, max_width_px / w) if max_width_px else 1.0
+        self.width_px, self.height_px = max(1, round(w * scale)), max(1, round(h * scale))
+        self._resize = {} if scale == 1.0 else {"width": self.width_px, "height": self.height_px,
+                                                 "interpolation": "AREA"}
+        self.fps = _rate(stream) or 30.0
+        self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._cache_bytes, self._cached_bytes = cache_bytes, 0
+        self._lock = threading.Lock()
+        self._seek(0)
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        i = operator.index(i)
+        if i < 0:
+            i += self._n
+        if not 0 <= i < self._n:
+            raise IndexError(f"frame {i} of a {self._n}-frame video")
+        with self._lock:
+            if i in self._cache:
+                self._cache.move_to_end(i)
+                return self._cache[i]
+            if not 0 <= i - self._next < DECODE_ON_FRAMES:
+                self._seek(i)
+            while True:
+                try:
+                    frame = next(self._frames)
+                except StopIteration:
+                    raise GalileoError(f"video {self.path} ends before its frame {i}") from None
+                except av.error.FFmpegError as e:
+                    raise GalileoError(f"video {self.path} is corrupt: {e}") from None
+                j = self._index_of.get(frame.pts, self._next)
+                self._next = j + 1
+                if j >= i - DECODE_ON_FRAMES:   # (not those long before it: a seek passes up to a key frame's worth)
+                    self._keep(j, frame.to_ndarray(format="rgb24", **self._resize))
+                if j >= i:
+                    return self._cache.get(i, self._cache[j])
+
+    def _seek(self, i: int) -> None:
+        """Put the decoder on the key frame at or before frame i (the start, without time stamps)."""
+        if self._pts is None or i == 0:
+            self._box.seek(0)
+            self._next = 0
+        else:
+            self._box.seek(self._pts[i], stream=self._stream, backward=True, any_frame=False)
+            self._next = i   # (until a frame comes out: its stamp tells where the decoder landed)
+        self._frames = self._box.decode(self._stream)
+
+    def _keep(self, j: int, img: np.ndarray) -> None:
+        img.flags.writeable = False
+        old = self._cache.pop(j, None)
+        self._cached_bytes += img.nbytes - (0 if old is None else old.nbytes)
+        self._cache[j] = img
+        while len(self._cache) > 1 and self._cached_bytes > self._cache_bytes:
+            self._cached_bytes -= self._cache.popitem(last=False)[1].nbytes
+
+    def close(self) -> None:
+        with self._lock:
+            self._box.close()
 
 
 def yuv_to_rgb(y: np.ndarray, uv: np.ndarray) -> np.ndarray:

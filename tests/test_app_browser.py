@@ -91,7 +91,10 @@ def test_browser_shows_each_latents_convergence_state_and_the_ratio(kept_viewer)
             page.goto(v.url)
             verdict = page.locator(".galileo-verdict")
             verdict.wait_for(timeout=30000)
-            assert verdict.inner_text().startswith("Not converged:")
+            n_ok = sum(conv["per_latent"].values())
+            # issue 24: the count is of the latents that converged, said so (it read backwards)
+            assert verdict.inner_text().startswith(f"Not converged: {n_ok} of {len(v.ctrl.names)} latents "
+                                                   "converged so far")
             assert "rgb(201, 42, 42)" == verdict.evaluate("e => getComputedStyle(e).color")
             for name in v.ctrl.names:
                 row = page.locator(f'.galileo-latent[data-latent="{name}"]')

@@ -1,5 +1,6 @@
 """Failures at run time (issue 15): a worker process killed mid-run (the pool restarted, the
-round run again, the chains those of a run in which nothing died), workers that keep dying
+round run again, the chains those of a run in which nothing died), one stopped mid-run (issue
+24: noticed at the round's deadline, then the same), workers that keep dying
 (every chain paused, resumable), an interrupted save's temporary files (removed on reopen),
 and rerun's web viewer bound to the app's host."""
 import os
@@ -106,7 +107,7 @@ def test_a_killed_worker_is_replaced_and_the_chains_go_on_unchanged(demo, refere
         assert ctl._executor.context == "spawn"   # threads exist by now: a fork would copy their state
         wait_until(lambda: not alive(pids[1]), 20, "the broken pool's other worker to end")
         same_as(reference, ctl)
-        ctl.stop()
+        ctl.close()     # (saved, and its lock let go)
         err = capfd.readouterr().err
         assert "galileo: warning: an inference worker died during sweep" in err and f"pid {pids[0]}" in err
         # the session holds the event, and reopens as the same chains
@@ -117,6 +118,53 @@ def test_a_killed_worker_is_replaced_and_the_chains_go_on_unchanged(demo, refere
         finally:
             back.close()
     finally:
+        ctl.close()
+
+
+@pytest.mark.timeout(300)
+def test_a_stopped_worker_is_killed_and_replaced_and_the_chains_go_on_unchanged(demo, reference, monkeypatch,
+                                                                               capfd):
+    """SIGSTOP the pool's worker while a round is in flight (a worker that stops answering, as
+    one stuck would): past the round's deadline (a 5 s floor here, 60 s in the app) its pool is
+    killed and made anew and the round runs again; sampling goes on to the sweep target, the
+    hang is an event, a status entry and a line on stderr, and the chains equal an
+    uninterrupted run's bit for bit."""
+    monkeypatch.setattr(controller_module, "ROUND_DEADLINE_FLOOR_S", 5.0)
+    ctl = Controller(*demo, chains=3, seed=7, workers=1, sweeps=SWEEPS)
+    (pid,) = ctl._executor.pids()
+    try:
+        stopped = []
+
+        def stopper():   # the moment a round after the second is in flight
+            wait_until(lambda: ctl.status()["rounds"] >= 2 and ctl._in_flight, 120, "a round in flight")
+            os.kill(pid, signal.SIGSTOP)
+            stopped.append(pid)
+        t = threading.Thread(target=stopper, daemon=True)
+        t.start()
+        ctl.start()
+        t.join(130)
+        assert stopped == [pid]
+        wait_until(lambda: all_held(ctl), 240, "the chains to reach the sweep target")
+        assert ctl.running and ctl.status()["error"] is None
+
+        hung = [e["detail"] for e in ctl.events if e["kind"] == "worker_died"]
+        assert len(hung) == 1, hung
+        d = hung[0]
+        assert d["cause"] == "hung" and d["restarted"] and d["restarts"] == 1 and 3 <= d["sweep"] <= SWEEPS
+        assert d["workers"] == [{"pid": pid, "exitcode": None, "how": "stopped"}]
+        note = ctl.status()["workers"]["last_death"]
+        assert f"an inference worker stopped responding during sweep {d['sweep']} (pid {pid} stopped" in note["text"]
+        assert "restarted (1 time)" in note["text"] and not note["gave_up"]
+        assert not alive(pid)                      # killed, not left stopped
+        (new,) = ctl._executor.pids()
+        assert new != pid and alive(new) and ctl._executor.context == "spawn"
+        same_as(reference, ctl)
+        err = capfd.readouterr().err
+        assert f"galileo: warning: an inference worker stopped responding during sweep {d['sweep']}" in err
+    finally:
+        if alive(pid):
+            os.kill(pid, signal.SIGCONT)
+            os.kill(pid, signal.SIGKILL)
         ctl.close()
 
 
@@ -317,3 +365,26 @@ def test_a_damaged_session_is_refused_in_one_line(tmp_path, change, reason):
     path.write_text(json.dumps(doc))
     with pytest.raises((ValueError, GalileoError), match=reason):
         Controller.load(tmp_path / "s", workers=1)
+
+
+def test_rerun_web_ports_are_flags_checked_before_anything_starts(capsys):
+    """Issue 24, item 9: the rerun web viewer's ports (9090, 9876) can be set; they are for --rerun
+    web only, must differ, and a taken one is refused in one line before anything is tracked."""
+    import socket
+
+    import app
+
+    def refused(argv, needle):
+        assert app.main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("app: error:") and needle in err[0], err
+
+    refused(["--rerun-web-port", "9191"], "are for --rerun web")
+    refused(["--rerun", "web", "--rerun-web-port", "9191", "--rerun-grpc-port", "9191"], "must differ (both 9191)")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen(1)
+        taken = s.getsockname()[1]
+        refused(["--rerun", "web", "--rerun-grpc-port", str(taken), "--port", str(free_port())],
+                f"port {taken} on 127.0.0.1 is taken (another app running?); choose another with --rerun-grpc-port")
+    assert app.parse_args(["--rerun", "web", "--rerun-web-port", "9191", "--rerun-grpc-port", "9292"]).rerun_web_port == 9191

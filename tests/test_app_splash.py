@@ -120,3 +120,49 @@ def test_steering_keeps_widths_and_integer_latents_valid(splash_viewer):
     chain = ctrl.chain_ids()[0]
     ctrl.set_chain(chain, {"start_step": 7.3})
     assert ctrl.position(chain)["start_step"] == 7.0   # an integer latent stays on its grid
+
+
+def test_the_first_view_is_not_covered_by_the_video_cameras_frustum(splash_viewer):
+    """Issue 24, item 3: in a new browser the video camera's frustum (its apex and image plane,
+    `scale` deep) covered the lower-left quarter of the splash's first view. Projected into the
+    first view of a 1280 x 720 window, what of it is in view covers under 5% of the window, and
+    its lines are a few screen pixels thick, not world-thick."""
+    from ui.viewer import camera_pose
+
+    ctrl, v = splash_viewer
+    ic = v.server.initial_camera
+    eye, look = np.asarray(ic.position, float), np.asarray(ic.look_at, float)
+    fwd = (look - eye) / np.linalg.norm(look - eye)
+    right = np.cross(fwd, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    wxyz, pos, fov, aspect = camera_pose(v.camera)
+    cam = v.camera
+    r = cam.world_to_camera[:3, :3].T          # camera to world (OpenCV axes: x right, y down, z forward)
+    s = v._frustum_scale_m
+    t = np.tan(fov / 2)
+    corners = [pos + s * (r @ np.array([sx * t * aspect, sy * t, 1.0])) for sx in (-1, 1) for sy in (-1, 1)]
+    pts = np.array([pos, *corners])
+    rel = pts - eye
+    z = rel @ fwd
+    W, H = 1280, 720
+    f = (H / 2) / np.tan(ic.fov / 2)
+    front = z > 1e-6
+    if front.sum() >= 3:
+        u = np.clip(f * (rel[front] @ right) / z[front] + W / 2, 0, W)
+        w = np.clip(f * (rel[front] @ down) / z[front] + H / 2, 0, H)
+        assert (u.max() - u.min()) * (w.max() - w.min()) < 0.05 * W * H
+    frustum = next(iter(v._frustums.values()), None)
+    if frustum is not None:
+        assert frustum.thickness_units == "screen" and frustum.thickness <= 3
+
+
+def test_the_chains_panel_says_where_the_splash_starts_its_chains(splash_viewer):
+    """Issue 24, item 4: the panel said "Chains started from the prior" while every chain starts
+    at the seed's density 0.5 and equal-dimension area: it now says what the scenario does, and
+    the starts agree with it."""
+    ctrl, v = splash_viewer
+    assert v.init_text.content.startswith("Chains started as the seed starts them: the bottom area at which")
+    starts = np.array(list(ctrl.starts().values()))
+    j = ctrl.names.index("density_g_cm3")
+    assert np.all(starts[:, j] == 0.5) and len(set(starts[:, ctrl.names.index("area_cm2")])) == 1

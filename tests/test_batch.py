@@ -295,3 +295,64 @@ def test_ctrl_c_stops_the_run_in_one_line_and_keeps_its_records(dataset, tmp_pat
         return subprocess.run(["ps", "-g", str(p.pid), "-o", "pid=,args="], capture_output=True, text=True).stdout.strip()
     # the workers end on their own (the cluster's shutdown): waited for, generously on a busy machine
     assert wait_until(lambda: not left(), 180), f"processes outlived the run: {left()}"
+
+
+@pytest.mark.parametrize("to", ["the command", "its process group"])
+def test_sigterm_stops_the_run_like_ctrl_c_in_one_line_with_exit_143(dataset, tmp_path, to):
+    """`kill PID` (the command alone) or a batch system's time limit (every process of the job):
+    the records written are kept, the workers shut down, one line, exit 128 + 15."""
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "galileo", "experiment", str(dataset), "--out", str(out),
+                          "--workers", "1", "--quiet", *ARGS], start_new_session=True,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    assert wait_until(lambda: list((out / "records").glob("*.json")), 300), "no video was ever recorded"
+    if to == "the command":
+        os.kill(p.pid, signal.SIGTERM)
+    else:
+        os.killpg(p.pid, signal.SIGTERM)
+    err = p.communicate(timeout=120)[1].decode()
+    assert p.returncode == 128 + signal.SIGTERM and err.strip() == "galileo: terminated", (p.returncode, err)
+    kept = list((out / "records").glob("*.json"))
+    assert kept and not (out / "report.json").exists()
+    assert all(json.loads(f.read_text())["status"] == "fitted" for f in kept)     # whole records, as written
+
+    def left() -> str:
+        return subprocess.run(["ps", "-g", str(p.pid), "-o", "pid=,args="], capture_output=True, text=True).stdout.strip()
+    assert wait_until(lambda: not left(), 180), f"processes outlived the run: {left()}"
+
+
+def test_a_dataset_whose_videos_all_lack_files_is_refused_before_any_cluster(tmp_path, capsys, monkeypatch):
+    """1000 listed videos, none there: refused in one line naming how many and the first few,
+    without starting a cluster (it took minutes to fail each video on one)."""
+    (tmp_path / "index.json").write_text(json.dumps({"videos": [{"name": f"v{i:04d}"} for i in range(1000)]}))
+    (tmp_path / "v0001").mkdir()
+    (tmp_path / "v0001" / "scene.json").mkdir()           # a folder where a file belongs
+
+    def no_cluster(*a, **k):
+        raise AssertionError("a cluster was started")
+    monkeypatch.setattr(batch, "open_client", no_cluster)
+    assert main(["experiment", str(tmp_path), "--out", str(tmp_path / "o"), "--quiet", *ARGS]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"galileo: error: {tmp_path}: none of the 1000 videos its index.json lists can run: "
+                   "v0000/scene.json not found; v0001/scene.json is not a file; v0002/scene.json not found; "
+                   "and 997 more\n")
+    assert not (tmp_path / "o").exists()
+
+
+def test_videos_lacking_files_are_recorded_failed_without_running_and_the_rest_run(dataset, tmp_path, capsys):
+    ds = tmp_path / "ds"
+    shutil.copytree(dataset, ds)
+    (ds / "a" / "truth.json").unlink()
+    shutil.rmtree(ds / "c")
+    out = tmp_path / "out"
+    assert main(["experiment", str(ds), "--out", str(out), "--workers", "1", "--quiet", *ARGS]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == ("galileo: warning: 2 of 3 videos lack a file and are recorded as failed without running: "
+                      "a/truth.json not found; c/scene.json not found")
+    recs = {n: json.loads((out / "records" / f"{n}.json").read_text()) for n in "abc"}
+    assert recs["b"]["status"] == "fitted"
+    for name, error in (("a", "a/truth.json not found"), ("c", "c/scene.json not found")):
+        assert recs[name]["status"] == "failed" and recs[name]["error"] == error
+        assert "worker" not in recs[name]                   # never sent to a worker
+    report = json.loads((out / "report.json").read_text())
+    assert sorted(report["run"]["failed_videos"]) == ["a", "c"] and report["summary"]["fitted"] == 1

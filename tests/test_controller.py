@@ -445,11 +445,12 @@ def test_session_saved_mid_run_reloads_the_same(make, tmp_path):
     ctl.pause(1)
     ctl.run_sweeps(1)
     ctl.save()
-    assert sorted(p.name for p in folder.iterdir()) == sorted(sess.FILES)
+    assert sorted(p.name for p in folder.iterdir()) == sorted(sess.FILES + (sess.LOCK_FILE,))
     with np.load(folder / "record.npz", allow_pickle=False) as z:
         assert z["c0_samples"].shape == (3, 4) and z["c1_samples"].shape == (2, 4)
     for name in ("scene.json", "tracks.json", "settings.json", "events.json", "chains.json"):
         json.loads((folder / name).read_text())
+    ctl.close()    # (its lock let go: one controller on a session at a time)
     back = Controller.load(folder, workers=1)
     try:
         same_chains(ctl, back)
@@ -685,6 +686,7 @@ def test_start_stop_in_the_background(demo, make, tmp_path):
     assert chain == 0 and sweep == len(s) and loglik == ll[-1] and values == ctl.sample(0, -1)
 
     # the session on disk is complete
+    ctl.close()
     back = Controller.load(tmp_path / "bg", workers=1)
     try:
         same_chains(ctl, back)

@@ -331,3 +331,35 @@ def test_simulations_from_two_threads_equal_each_alone(demo_frozen):
         assert len(got[i]) == 15
         for value in got[i]:
             np.testing.assert_array_equal(value, alone[i])
+
+
+def test_a_likelihood_made_while_another_thread_simulates_is_the_same(demo_frozen):
+    """Reopening a session builds the viewer's and the rerun feed's likelihoods while chains may
+    already simulate in this process: building one simulates the target alone on the shared
+    Bullet client (issue 24: `GetBasePositionAndOrientation failed` when another thread reset
+    the world under it). Built beside a thread that simulates without pause, each is the one
+    built alone."""
+    import threading
+
+    from galileo import registry
+
+    scene, tracks, truth = demo_frozen
+    scenario = registry.of(scene)
+    busy = scenario.likelihood(scene, tracks, 0.05)
+    other = truth * np.array([1.6, 0.5, 0.7, 1.3])
+    alone = scenario.likelihood(scene, tracks, 0.05)._target_alone
+    stop = threading.Event()
+
+    def simulate() -> None:
+        while not stop.is_set():
+            busy.motion(other)
+
+    t = threading.Thread(target=simulate, daemon=True)
+    t.start()
+    try:
+        for _ in range(10):
+            built = scenario.likelihood(scene, tracks, 0.05)._target_alone
+            assert len(built) == len(alone) and all(b == a for b, a in zip(built, alone))
+    finally:
+        stop.set()
+        t.join(60)

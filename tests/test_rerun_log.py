@@ -451,3 +451,41 @@ def test_web_viewer_shows_a_video_frame_in_chromium(demo_dir, tmp_path):
         if child.poll() is None:
             child.kill()
             child.wait()
+
+
+def test_events_read_as_words_and_the_scene_is_drawn_without_legends(tmp_path):
+    """Issue 24, item 9: an event reads "kind: name value; ..." (never a Python dict or list of
+    sixteen starts); the scene's ramp is in the 3-D view (it held only the paths); the chains'
+    plots have no legend (16 names covered them); the side panels start folded."""
+    from galileo import registry
+    from galileo.scenarios.ramp.scene import default_scene
+    from ui.rerun_log import event_text
+
+    ev = {"kind": "init", "sweep": 0, "detail": {"seed": 0, "chains": list(range(16)), "moves": "default",
+                                                 "noise": 0.05, "starts": {str(c): [0.1, 0.2] for c in range(16)},
+                                                 "adapting": True}}
+    text = event_text(ev)
+    assert text == "init: seed 0; chains (16 values); moves default; noise 0.05; starts (16 entries); adapting yes"
+    assert not set("{}'") & set(text)
+    scene = default_scene(20, target="cardboard")
+    drawing = registry.of(scene).drawing(scene)
+    log = RerunLogger("save", session_dir=tmp_path, latents=LATENTS, n_chains=16)
+    log.log_scene(drawing)
+    log.close()
+    ents = read_rrd(tmp_path / RRD_NAME)
+    for m in drawing.static:
+        (tl, cols), = [e for e in ents[f"scene/{m.name}"] if "Mesh3D:vertex_positions" in e[1]]
+        assert not tl and len(cols["Mesh3D:vertex_positions"][0]) == len(m.vertices)
+    reader = chunk.RrdReader(tmp_path / RRD_NAME)
+    legends, panels = [], {}
+    for bp in reader.blueprints():
+        for ch in reader.stream(store=bp).to_chunks():
+            cols = ch.to_record_batch().to_pydict()
+            legends += [v for v in cols.get("PlotLegend:visible", []) if v is not None]
+            for k, v in cols.items():
+                if k.endswith("PanelBlueprint:state") and v:
+                    panels[ch.entity_path] = v[-1]
+        assert any("/scene/**" in q for q in blueprint_queries(tmp_path / RRD_NAME)[0])
+    assert legends and all(v == [False] for v in legends), legends
+    # rerun's PanelState: 1 hidden, 2 collapsed, 3 expanded
+    assert panels == {"/blueprint_panel": [2], "/selection_panel": [2], "/time_panel": [3]}, panels

@@ -148,3 +148,52 @@ def test_a_worker_that_dies_is_named_in_one_error():
     assert "\n" not in msg
     killed = [w for w in pool.dead_workers() if w["how"] == "killed by SIGKILL"]
     assert len(killed) == 1 and f"pid {killed[0]['pid']} killed by SIGKILL" in msg and "--workers" in msg
+
+
+def test_a_worker_that_stops_answering_is_named_and_killed():
+    """A map whose worker was stopped (SIGSTOP) ends at its deadline with WorkerHung naming the
+    worker as stopped, and the worker is killed rather than left holding the pool."""
+    import os
+    import signal
+
+    import psutil
+
+    from galileo.runner import LocalPool, WorkerHung
+
+    pool = LocalPool(1)
+    (pid,) = pool.pids()
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        with pytest.raises(WorkerHung) as e:
+            list(pool.map(_die_in_worker, [0, 0], timeout_s=2.0))
+        assert pool.dead_workers() == [{"pid": pid, "exitcode": None, "how": "stopped"}]
+        assert f"pid {pid} stopped" in str(e.value) and "\n" not in str(e.value) and e.value.timeout_s == 2.0
+        assert not psutil.pid_exists(pid) or psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
+    finally:
+        if psutil.pid_exists(pid):
+            os.kill(pid, signal.SIGKILL)
+        pool.shutdown()
+
+
+def test_infer_progress_moves_per_sweep_and_the_chains_stay_the_same(frozen, monkeypatch):
+    """With a progress bar, one long chain advances the bar sweep by sweep (a piece per round,
+    here one sweep: the bar's steps of 1, not one step of the whole chain at its end), and the
+    chains are those of a run without the bar, bit for bit."""
+    from galileo import runner
+
+    updates = []
+
+    class Bar(runner.tqdm):
+        def update(self, n=1):
+            updates.append(n)
+            return super().update(n)
+    cfg = RunConfig(chains=1, sweeps=6, seed=5, workers=1)
+    plain = infer(*frozen, cfg, progress=False)
+    monkeypatch.setattr(runner, "tqdm", Bar)
+    monkeypatch.setattr(runner, "PROGRESS_PIECE_S", 1e-9)    # every piece one sweep
+    shown = infer(*frozen, cfg, progress=True)
+    assert updates == [1] * 6
+    for k in ("samples", "logliks", "starts"):
+        assert np.array_equal(getattr(shown, k), getattr(plain, k)), k
+    for k, v in plain.proposals.items():
+        assert np.array_equal(shown.proposals[k], v, equal_nan=v.dtype.kind == "f"), k

@@ -284,6 +284,49 @@ def test_default_camera_sees_the_scene_upright():
     assert cam.project(np.array([0.1, 0.0, 0.1]))[0] > base[0]
 
 
+# -- the physics rate: whole steps a video frame (issue 24) -------------------------------------
+
+@pytest.mark.parametrize("fps, hz", [
+    (30.0, 240), (60.0, 240), (24.0, 240),        # 240 Hz steps these evenly: unchanged
+    (25.0, 250.0),                                # PAL: 10 steps a frame
+    (30000 / 1001, 8 * 30000 / 1001),             # NTSC 29.97: 8 steps, 239.76 Hz
+    (29.7, 8 * 29.7),                             # a phone clip of Physics 101: 237.6 Hz
+    (50.0, 250.0), (7.0, 238.0), (1000.0, 1000.0),
+])
+def test_a_scene_steps_the_multiple_of_its_frame_rate_nearest_sim_hz(fps, hz):
+    from galileo.camera import steps_per_frame
+
+    s = default_scene(20, camera=default_camera(fps=fps))
+    assert s.sim_hz == pytest.approx(hz, rel=1e-12)
+    assert steps_per_frame(s.sim_hz, fps) * fps == pytest.approx(s.sim_hz, rel=1e-12)
+    back = round_trip(s)                           # written as the rate it runs at, read back as is
+    assert back.sim_hz == s.sim_hz and back == s
+
+
+def test_the_physics_rate_stays_inside_sim_hz_bounds():
+    from galileo.camera import physics_hz
+    from galileo.scenarios.ramp.scene import SIM_HZ
+
+    assert physics_hz(60, 25.0) == 50.0 and physics_hz(60, 25.0, SIM_HZ) == 75.0   # nearest, then inside [60, 10000]
+    assert physics_hz(10_000, 600.0) == 10_200.0 and physics_hz(10_000, 600.0, SIM_HZ) == 9600.0
+    s = scene_from_json({**default_scene(20).to_json(), "sim_hz": 60,
+                         "camera": default_camera(fps=25.0).to_json()})
+    assert s.sim_hz == 75.0
+
+
+def test_old_scene_files_load_as_they_did():
+    """A scene file written before issue 24 (the demo's, 30 fps) runs at its 240 Hz, exactly,
+    and so does the same file without its camera (no frame rate to step evenly)."""
+    from pathlib import Path
+
+    from galileo.camera import steps_per_frame
+
+    d = json.loads((Path(__file__).parent / "data" / "scene.json").read_text())
+    s = scene_from_json(d)
+    assert d["sim_hz"] == 240 and s.sim_hz == 240 and steps_per_frame(s.sim_hz, s.camera.fps) == 8
+    assert scene_from_json({k: v for k, v in d.items() if k != "camera"}).sim_hz == 240
+
+
 # -- initial pose -------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("angle", [0.0, 10.0, 20.0, 45.0])

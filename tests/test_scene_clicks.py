@@ -7,6 +7,7 @@ import pytest
 
 from galileo.camera import look_at_camera
 from galileo.cli import main
+from galileo.errors import GalileoError
 from galileo.registry import load_scene
 from galileo.scenarios.ramp.clicks import camera_from_clicks, ramp_points_in_world
 
@@ -223,3 +224,32 @@ def test_a_still_video_without_start_m_is_refused_in_one_line(tmp_path, capsys):
     # with --start-m it is a scene
     assert main(scene_argv(truth, tmp_path / "video.mp4", tmp_path / "s.json", "--start-m", "0.45")) == 0
     assert load_scene(tmp_path / "s.json").start_distance_m() == pytest.approx(0.45)
+
+
+def test_the_upload_page_finds_the_start_on_a_ramp_shorter_than_the_papers_start(tmp_path):
+    """Issue 24, item 6: a 0.5 m ramp (shorter than the paper's 0.6 m start), its upper points
+    clicked 0.2 m up and the block 0.32 m up: the browser's solver (`ui.calibrate.solve`, no
+    start entered) finds the block where it is, not "beyond the ramp's length"; a start that
+    puts the block past the top is refused in the page's words."""
+    from galileo.scenarios.ramp.render import Look, render_to_video
+    from galileo.scenarios.ramp.scene import Ramp, Scene, SceneObject
+    from galileo.shapes import Shape
+    from ui.calibrate import Numbers, probe_video, solve
+
+    true_start, length, upper = 0.32, 0.5, 0.2
+    cam = look_at_camera((-0.3, -0.9, 0.45), (-0.25, 0.0, 0.08), focal_px=420.0, width_px=480, height_px=360,
+                         n_frames=30)
+    block = SceneObject("ramp_object", "ramp", Shape("box", (0.07, 0.05, 0.05)), 0.16, 0.2, material="wooden block")
+    truth = Scene(Ramp(20.0, length, 0.3), (block,), camera=cam, start_units=true_start / 0.02)
+    truth.validate()
+    render_to_video(truth, tmp_path / "short.mp4", 30, look=Look((0.3, -1.2, 2.0), 0.6, 0.45, 0.015, 2.0, 3),
+                    texture_seed=1)
+    clip = probe_video(tmp_path / "short.mp4")
+    uv = cam.project(ramp_points_in_world(length, 0.3, 20.0, upper))
+    nums = Numbers(length_m=length, width_m=0.3, angle_deg=20.0, upper_at_m=upper)
+    scene, err_px, found = solve(clip, uv, nums)
+    assert found and err_px < 0.5
+    assert abs(scene.start_distance_m() - true_start) <= start_tolerance_m(truth, scene), scene.start_distance_m()
+    with pytest.raises(GalileoError, match=r"past the ramp's top: enter Start \(m\) from 0.03 to 0.47") as e:
+        solve(clip, uv, Numbers(length_m=length, width_m=0.3, angle_deg=20.0, upper_at_m=upper, start_m=0.48))
+    assert "objects[0]" not in str(e.value) and "length_m" not in str(e.value)

@@ -206,6 +206,9 @@ def test_cli_dispatches_on_index_scenario_with_its_protocol(tmp_path, monkeypatc
     monkeypatch.setattr(batch, "open_client", lambda *a, **k: contextlib.nullcontext())
     index = {"videos": [{"name": "v"}]} if scenario is None else {"scenario": scenario, "videos": [{"name": "v"}]}
     (tmp_path / "index.json").write_text(json.dumps(index))
+    (tmp_path / "v").mkdir()           # the video's files (checked before a cluster starts)
+    for f in batch.VIDEO_FILES:
+        (tmp_path / "v" / f).write_text("")
     assert main(["experiment", str(tmp_path), "--out", str(tmp_path / "r"), "--quiet", *flags]) == 0
     assert seen == {"chains": expected[0], "sweeps": expected[1]}
     assert json.loads(capsys.readouterr().out.split("\n}")[0] + "}") == {"ok": scenario or "ramp"}

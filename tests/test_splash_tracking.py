@@ -78,3 +78,46 @@ def test_small_preset_objects_track_without_ghosts(name, tmp_path):
     assert np.median(err) < 3e-3 and err.max() < 6e-3
     if truth["latents"]["kind"] == "box":
         assert obj.bottom_up["volume_cm3"] == pytest.approx(truth["latents"]["volume_cm3"], rel=0.15)
+
+
+def test_frames_of_noise_are_not_seen_and_nothing_is_invented_in_them(demo, tmp_path):
+    """The splash demo with its second half noise: the object unseen there (it used to be put
+    at the image's centre, 22 cm up, through the noise), and seen where it was in the first
+    half (the demo test's tolerances, against the render's truth); a burst of noise early on
+    (frames 10-13, the object falling) is not seen either, and tracking goes on after it."""
+    from galileo import registry
+    from galileo.video import read_video, write_video
+
+    frames, _ = read_video(demo / "video.mp4")
+    n = len(frames)
+    scene = registry.load_scene(demo / "scene.json")
+    truth = np.array(json.loads((demo / "truth.json").read_text())["trajectory"]["objects"][0]["position_m"])
+    rng = np.random.default_rng(0)
+    for hidden in (range(n // 2, n), range(10, 14)):
+        shown = np.array([i not in hidden for i in range(n)])
+        write_video(tmp_path / "v.mp4", [f if s else rng.integers(0, 256, f.shape, dtype=np.uint8)
+                                         for f, s in zip(frames, shown)], 30.0)
+        (obj,) = registry.of(scene).track(tmp_path / "v.mp4", scene, progress=False).objects
+        assert np.array_equal(obj.visible, shown) and np.isnan(obj.position_m[~shown]).all()
+        err = np.linalg.norm((obj.position_m - truth)[shown][:, [0, 2]], axis=1)
+        assert np.median(err) < 2e-3 and err.max() < 4e-3
+
+
+@pytest.mark.parametrize("world_to_camera, needle", [
+    # identity: at the centre of the tank's floor, looking straight up through the water
+    (np.eye(4), "the camera stands inside the tank, at (0.00, 0.00, 0.00) m: check camera.world_to_camera"),
+    # 2 m to the side of the tank, looking away from it (+x, its y axis world -z: image down is world down)
+    ([[0, -1, 0, 0], [0, 0, -1, 0.2], [1, 0, 0, -2], [0, 0, 0, 1]],
+     "the camera sees none of the scene (the tank, the object's release: all behind it or outside its"),
+])
+def test_a_camera_that_does_not_see_the_tank_is_refused(demo, tmp_path, capsys, world_to_camera, needle):
+    from galileo.cli import main
+
+    d = json.loads((demo / "scene.json").read_text())
+    d["camera"]["world_to_camera"] = np.asarray(world_to_camera, float).tolist()
+    (tmp_path / "scene.json").write_text(json.dumps(d))
+    rc = main(["track", str(demo / "video.mp4"), "--scene", str(tmp_path / "scene.json"), "--out",
+               str(tmp_path / "t.json"), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and not (tmp_path / "t.json").exists()
+    assert err[0].startswith(f"galileo: error: {needle}")

@@ -200,6 +200,81 @@ def test_scene_without_camera(demo_dir, tmp_path, capsys):
     _bad(demo_dir / "video.mp4", path, tmp_path, capsys, "no camera")
 
 
+def test_a_camera_that_sees_none_of_the_scene_is_refused(demo_dir, tmp_path, capsys):
+    """An identity world_to_camera stands at the world's origin looking straight up (+z): the
+    ramp, the block and the box are all behind it or outside its image. It used to track
+    nothing, exit 0 and warn of a division by zero."""
+    import warnings
+
+    d = json.loads((demo_dir / "scene.json").read_text())
+    d["camera"]["world_to_camera"] = np.eye(4).tolist()
+    path = tmp_path / "identity.json"
+    path.write_text(json.dumps(d))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")    # (no division by zero on the way)
+        _bad(demo_dir / "video.mp4", path, tmp_path, capsys, "the camera sees none of the scene")
+        with pytest.raises(GalileoError) as e:
+            track(demo_dir / "video.mp4", Scene.load(path), progress=False)
+    assert str(e.value).startswith("the camera sees none of the scene (the ramp, the ramp object's start, the "
+                                   "target: all behind it or outside its 640x480 image; it stands at (0.00, 0.00, "
+                                   "0.00) m looking along (0.00, 0.00, 1.00)): check camera.world_to_camera")
+
+
+def noisy(frames, hidden, seed=0):
+    """The frames with those in `hidden` replaced by uniform noise (a corrupt stretch, a cut)."""
+    rng = np.random.default_rng(seed)
+    return [rng.integers(0, 256, f.shape, dtype=np.uint8) if i in hidden else f for i, f in enumerate(frames)]
+
+
+def test_frames_of_noise_are_not_seen_and_nothing_is_invented_in_them(demo_dir, tmp_path):
+    """The demo with its second half (frames 31-60) noise: every object unseen there (it used
+    to be tracked through the noise, 10 cm in the air), and seen where it was in the first
+    half (the demo test's 5 mm, against the render's truth)."""
+    frames, _ = read_video(demo_dir / "video.mp4")
+    write_video(tmp_path / "noise.mp4", noisy(frames, range(31, len(frames))), 30.0)
+    tracks = track(tmp_path / "noise.mp4", Scene.load(demo_dir / "scene.json"), progress=False)
+    truth = Trajectory.from_json(json.loads((demo_dir / "truth.json").read_text())["trajectory"])
+    for i, o in enumerate(tracks.objects):
+        assert not o.visible[31:].any() and np.isnan(o.position_m[31:]).all()
+        assert o.visible[:31].all()
+        err = np.linalg.norm((o.position_m[:31] - truth.position_m[i][:31])[:, [0, 2]], axis=1)
+        assert np.median(err) < 0.005 and err.max() < 0.01
+    assert not tracks.notes    # seen in half the frames: no note
+
+
+def test_tracking_goes_on_after_a_burst_of_noise(demo_dir, tmp_path):
+    """Frames 15-19 of the demo noise (the block is sliding, the box at rest): nothing seen in
+    them, and both objects tracked again in every frame after them, the box where it is."""
+    frames, _ = read_video(demo_dir / "video.mp4")
+    write_video(tmp_path / "burst.mp4", noisy(frames, range(15, 20)), 30.0)
+    tracks = track(tmp_path / "burst.mp4", Scene.load(demo_dir / "scene.json"), progress=False)
+    truth = Trajectory.from_json(json.loads((demo_dir / "truth.json").read_text())["trajectory"])
+    for o in tracks.objects:
+        assert not o.visible[15:20].any() and o.visible[:15].all() and o.visible[20:].all()
+    box = tracks.by_role("target")
+    np.testing.assert_allclose(box.position_m[20:25, [0, 2]], truth.position_m[1][20:25][:, [0, 2]], atol=0.001)
+
+
+def test_an_object_seen_in_few_frames_gets_a_note(demo_dir, tmp_path, capsys):
+    """The demo's first 20 frames and 100 of noise: `galileo track` says in a line per object
+    that it is seen in only 20 of 120 frames (it used to say nothing), and the tracks carry it."""
+    import dataclasses
+
+    frames, _ = read_video(demo_dir / "video.mp4")
+    write_video(tmp_path / "few.mp4", noisy(list(frames[:20]) + [frames[0]] * 100, range(20, 120)), 30.0)
+    scene = Scene.load(demo_dir / "scene.json")
+    scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, n_frames=120))
+    scene.save(tmp_path / "scene.json")
+    out = tmp_path / "tracks.json"
+    assert main(["track", str(tmp_path / "few.mp4"), "--scene", str(tmp_path / "scene.json"), "--out", str(out),
+                 "--quiet"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    notes = json.loads(out.read_text())["notes"]
+    for name, role in (("ramp_object", "ramp"), ("target", "target")):
+        (note,) = [n for n in notes if n.startswith(f"{name} ({role}) is seen in only 20 of 120 frames (16.7%)")]
+        assert f"note: {note}" in printed
+
+
 # -- dataset scale (slow) -------------------------------------------------------------------
 
 @pytest.mark.slow

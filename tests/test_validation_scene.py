@@ -87,9 +87,11 @@ def test_types_and_finite_values(tmp_path, change, message):
 # -- ranges: every bound named with the field ----------------------------------------------------------
 
 @pytest.mark.parametrize("base, change, message", [
-    (RAMP, (("objects", 0, "mass_kg"), 1e308), "objects[0].mass_kg: 1e+308 is outside (0, 100]"),
-    (RAMP, (("objects", 1, "mass_kg"), -1), "objects[1].mass_kg: -1 is outside (0, 100]"),
-    (RAMP, (("objects", 0, "mass_kg"), 0), "objects[0].mass_kg: 0 is outside (0, 100]"),
+    (RAMP, (("objects", 0, "mass_kg"), 1e308), "objects[0].mass_kg: 1e+308 is outside [1e-06, 100]"),
+    (RAMP, (("objects", 1, "mass_kg"), -1), "objects[1].mass_kg: -1 is outside [1e-06, 100]"),
+    (RAMP, (("objects", 0, "mass_kg"), 0), "objects[0].mass_kg: 0 is outside [1e-06, 100]"),
+    (RAMP, (("objects", 0, "mass_kg"), 1e-18), "objects[0].mass_kg: 1e-18 is outside [1e-06, 100]"),
+    (RAMP, (("objects", 1, "mass_kg"), 1e-9), "objects[1].mass_kg: 1e-09 is outside [1e-06, 100]"),
     (RAMP, (("objects", 0, "friction"), -0.1), "objects[0].friction: -0.1 is outside [0, 10]"),
     (RAMP, (("objects", 1, "friction"), 11), "objects[1].friction: 11 is outside [0, 10]"),
     (RAMP, (("objects", 0, "restitution"), 5), "objects[0].restitution: 5 is outside [0, 1]"),
@@ -98,8 +100,9 @@ def test_types_and_finite_values(tmp_path, change, message):
     (RAMP, (("objects", 1, "shape", "size_m"), [0.1, 0.0001, 0.1]),
      "objects[1].shape.size_m[1]: 0.0001 is outside [0.001, 2]"),
     (RAMP, (("objects", 1, "distance_m"), 1e9), "objects[1].distance_m: 1000000000.0 is outside [0, 2]"),
-    (RAMP, (("gravity_mps2",), 1e9), "gravity_mps2: 1000000000.0 is outside [0, 100]"),
-    (RAMP, (("gravity_mps2",), -9.81), "gravity_mps2: -9.81 is outside [0, 100]"),
+    (RAMP, (("gravity_mps2",), 1e9), "gravity_mps2: 1000000000.0 is outside (0, 100]"),
+    (RAMP, (("gravity_mps2",), -9.81), "gravity_mps2: -9.81 is outside (0, 100]"),
+    (RAMP, (("gravity_mps2",), 0), "gravity_mps2: 0 is outside (0, 100]"),
     (RAMP, (("sim_hz",), 2.4e8), "sim_hz: 240000000.0 is outside [60, 10000]"),
     (RAMP, (("sim_hz",), 30), "sim_hz: 30 is outside [60, 10000]"),
     (RAMP, (("camera", "n_frames"), 10_000_000), "camera.n_frames: 10000000 is outside [1, 100000]"),
@@ -112,7 +115,8 @@ def test_types_and_finite_values(tmp_path, change, message):
     (RAMP, (("ramp", "thickness_m"), 0), "ramp.thickness_m: 0 is outside (0, 1]"),
     (RAMP, (("unit_m",), 0), "unit_m: 0 is outside [0.001, 1]"),
     (RAMP, (("priors", "student_t_dof"), 1e308), "priors.student_t_dof: 1e+308 is outside (0, 1000]"),
-    (SPLASH, (("object", "density_g_cm3"), 30), "object.density_g_cm3: 30 is outside (0, 25]"),
+    (SPLASH, (("object", "density_g_cm3"), 30), "object.density_g_cm3: 30 is outside [0.001, 25]"),
+    (SPLASH, (("object", "density_g_cm3"), 1e-300), "object.density_g_cm3: 1e-300 is outside [0.001, 25]"),
     (SPLASH, (("object", "drag_water"), -1), "object.drag_water: -1 is outside [0, 100]"),
     (SPLASH, (("object", "volume_cm3"), 500), "object.volume_cm3: 500 is outside [0.01, 100]"),
     (SPLASH, (("object", "area_cm2"), 1e308), "object.area_cm2: 1e+308 is outside (0, 1000]"),
@@ -121,7 +125,8 @@ def test_types_and_finite_values(tmp_path, change, message):
     (SPLASH, (("tank", "water_level_m"), 0.3), "tank.water_level_m: 0.3 is outside (0, 0.3)"),
     (SPLASH, (("tank", "water_density_kg_m3"), 1e5), "tank.water_density_kg_m3: 100000.0 is outside [1, 5000]"),
     (SPLASH, (("sim_hz",), 2.4e8), "sim_hz: 240000000.0 is outside [60, 10000]"),
-    (SPLASH, (("gravity_mps2",), 1000), "gravity_mps2: 1000 is outside [0, 100]"),
+    (SPLASH, (("gravity_mps2",), 1000), "gravity_mps2: 1000 is outside (0, 100]"),
+    (SPLASH, (("gravity_mps2",), 0.0), "gravity_mps2: 0.0 is outside (0, 100]"),
     (SPLASH, (("release_m",), [0, 0, 5]), "release_m: z = 5 m is more than 1 m above the water (at 0.2 m)"),
     (SPLASH, (("release_m",), [0, 0, 0.1]), "release_m: the object must be let go above the water (z > 0.2 m)"),
 ])
@@ -134,7 +139,6 @@ def test_ranges_name_the_field_and_the_bound(tmp_path, base, change, message):
 @pytest.mark.parametrize("base, change, message", [
     (RAMP, (("objects", 0, "offset_units"), 1.5), "objects[0].offset_units: expected an integer, got 1.5"),
     (RAMP, (("camera", "n_frames"), 60.5), "camera.n_frames: expected an integer, got 60.5"),
-    (RAMP, (("sim_hz",), 240.5), "sim_hz: expected an integer, got 240.5"),
     (RAMP, (("priors", "offset_units"), [-5.5, 5]), "priors.offset_units: expected [low, high], two integers, got "
      "[-5.5, 5]"),
     (SPLASH, (("start_step",), 4.5), "start_step: expected an integer, got 4.5"),
@@ -203,7 +207,6 @@ def test_singular_camera_no_longer_reaches_tracking(tmp_path):
     (SPLASH, [(("sim_hz",), 9000), (("camera", "fps"), 1), (("camera", "n_frames"), 300)],
      "camera.n_frames: 300 frames at 1 fps are 2691005 physics steps at sim_hz 9000, more than 2000000 (shorten "
      "the video or lower sim_hz)"),
-    (RAMP, [(("camera", "fps"), 29.97)], "sim_hz (240) must be a multiple of camera.fps (29.97)"),
 ])
 def test_total_physics_steps_are_bounded(tmp_path, base, changes, message):
     assert_refused(tmp_path, mutated(base, *changes), message)
@@ -238,7 +241,8 @@ def test_a_duplicated_object_is_refused(tmp_path):
     (RAMP, (("priors", "k1"), [1, 0]), "priors.k1: expected [low, high] with low <= high, got [1, 0]"),
     (RAMP, (("priors", "m1_kg"), ["0.1", 1]), "priors.m1_kg: expected [low, high], two numbers, got ['0.1', 1]"),
     (RAMP, (("priors", "m2_kg"), [0.1, 1000]), "priors.m2_kg: bounds must be <= 100 kg, got a high bound of 1000"),
-    (RAMP, (("priors", "m2_kg"), [0, 1]), "priors.m2_kg: bounds must be > 0 kg, got a low bound of 0"),
+    (RAMP, (("priors", "m2_kg"), [0, 1]), "priors.m2_kg: bounds must be >= 1e-06 kg, got a low bound of 0"),
+    (RAMP, (("priors", "m1_kg"), [1e-18, 1]), "priors.m1_kg: bounds must be >= 1e-06 kg, got a low bound of 1e-18"),
     (RAMP, (("priors", "log10_sigma_mps"), [-300, 300]),
      "priors.log10_sigma_mps: bounds must be >= -4 log10 m/s, got a low bound of -300"),
     (RAMP, (("priors", "size_m"), [0.001, 5]), "priors.size_m: 0.001 is outside [0.005, 2]"),
@@ -248,6 +252,8 @@ def test_a_duplicated_object_is_refused(tmp_path):
     (SPLASH, (("priors", "density_g_cm3"), [2, 1]), "priors.density_g_cm3: expected [low, high] with low <= high, "
      "got [2, 1]"),
     (SPLASH, (("priors", "drag_water"), [0, 2]), "priors.drag_water: bounds must be > 0, got a low bound of 0"),
+    (SPLASH, (("priors", "density_g_cm3"), [1e-4, 2]),
+     "priors.density_g_cm3: bounds must be >= 0.001 g/cm^3, got a low bound of 0.0001"),
     (SPLASH, (("priors", "start_step"), [10, 10]),
      "priors.start_step: the low bound (10) must be below the high bound (10)"),
 ])
@@ -293,14 +299,14 @@ def test_huge_integers_are_refused_by_bound():
     with pytest.raises(SceneError, match=r"^objects\[0\]\.offset_units: 1000.*0 is outside \[-10000, 10000\]$"):
         registry.scene_from_json(d)
     d = mutated(RAMP, (("gravity_mps2",), 10 ** 400))
-    with pytest.raises(SceneError, match=r"^gravity_mps2: 1000.*0 is outside \[0, 100\]$"):
+    with pytest.raises(SceneError, match=r"^gravity_mps2: 1000.*0 is outside \(0, 100\]$"):
         registry.scene_from_json(d)
 
 
 # -- the library: scenes built in code and with_values (simulate --set, the quick form) ---------------------
 
 def test_scenes_built_in_code_are_validated():
-    with pytest.raises(SceneError, match=r"^objects\[0\]\.mass_kg: -1 is outside \(0, 100\]$"):
+    with pytest.raises(SceneError, match=r"^objects\[0\]\.mass_kg: -1 is outside \[1e-06, 100\]$"):
         ramp.default_scene(20, mass_kg=-1)
     with pytest.raises(SceneError, match=r"^objects\[0\]\.shape: a torus needs"):
         ramp.default_scene(20, shape=Shape("torus", (0.04, 0.04, 0.02)))
@@ -310,13 +316,14 @@ def test_scenes_built_in_code_are_validated():
     mirrored = dataclasses.replace(cam, world_to_camera=np.diag([-1.0, 1, 1, 1]) @ cam.world_to_camera)
     with pytest.raises(SceneError, match=r"^camera\.world_to_camera: expected a rotation with determinant \+1"):
         ramp.default_scene(20, camera=mirrored)
-    with pytest.raises(SceneError, match=r"^object\.density_g_cm3: 30 is outside \(0, 25\]$"):
+    with pytest.raises(SceneError, match=r"^object\.density_g_cm3: 30 is outside \[0\.001, 25\]$"):
         splash.default_scene("box", density_g_cm3=30)
 
 
 @pytest.mark.parametrize("base, values, message", [(RAMP, v, m) for v, m in [
-    ({"m1_kg": 1e308}, "m1_kg: 1e+308 is outside (0, 100]"),
-    ({"m2_kg": -1.0}, "m2_kg: -1.0 is outside (0, 100]"),
+    ({"m1_kg": 1e308}, "m1_kg: 1e+308 is outside [1e-06, 100]"),
+    ({"m2_kg": -1.0}, "m2_kg: -1.0 is outside [1e-06, 100]"),
+    ({"m1_kg": 1e-18}, "m1_kg: 1e-18 is outside [1e-06, 100]"),
     ({"k1": math.nan}, "k1: expected a finite number, got nan"),
     ({"k2": 11.0}, "k2: 11.0 is outside [0, 10]"),
     ({"e1": 5.0}, "e1: 5.0 is outside [0, 1]"),
@@ -327,7 +334,7 @@ def test_scenes_built_in_code_are_validated():
     ({"offset_units": 30.0}, "objects[0]: starts 1.235 m up the ramp, beyond its length_m 0.9"),
 ]] + [(SPLASH, v, m) for v, m in [
     ({"start_step": 5.5}, "start_step: expected an integer, got 5.5"),
-    ({"density_g_cm3": 1e308}, "density_g_cm3: 1e+308 is outside (0, 25]"),
+    ({"density_g_cm3": 1e308}, "density_g_cm3: 1e+308 is outside [0.001, 25]"),
     ({"volume_cm3": 0.0}, "volume_cm3: 0.0 is outside [0.01, 100]"),
     ({"drag_water": -1.0}, "drag_water: -1.0 is outside [0, 100]"),
 ]])
@@ -339,7 +346,8 @@ def test_with_values_checks_every_value(base, values, message):
 
 
 @pytest.mark.parametrize("setting, message", [
-    ("m1_kg=1e308", "m1_kg: 1e+308 is outside (0, 100]"),
+    ("m1_kg=1e308", "m1_kg: 1e+308 is outside [1e-06, 100]"),
+    ("m2_kg=1e-18", "m2_kg: 1e-18 is outside [1e-06, 100]"),
     ("k1=-1", "k1: -1.0 is outside [0, 10]"),
     ("e1=5", "e1: 5.0 is outside [0, 1]"),
     ("offset_units=1.5", "offset_units: expected an integer, got 1.5"),
@@ -359,6 +367,20 @@ def test_simulate_quick_form_is_validated(tmp_path):
     rc, _, err = run_cli(["simulate", "--mass", "1e308", "--frames", "3", "--out", str(out)])
     assert rc == 2 and len(err.splitlines()) == 1 and err.startswith("galileo: error: ") and "mass" in err
     assert "1e+308" in err or "1e308" in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("change, message", [
+    ((("gravity_mps2",), 0), "gravity_mps2: 0 is outside (0, 100]"),       # was a ZeroDivisionError in moves.py
+    ((("objects", 0, "mass_kg"), 1e-18), "objects[0].mass_kg: 1e-18 is outside [1e-06, 100]"),   # was frozen, exit 0
+])
+def test_infer_refuses_a_scene_without_gravity_or_with_a_weightless_object(tmp_path, change, message):
+    p = tmp_path / "scene.json"
+    p.write_text(json.dumps(mutated(RAMP, change)))
+    out = tmp_path / "r.json"
+    rc, _, err = run_cli(["infer", str(DATA / "none.mp4"), "--scene", str(p), "--tracks", str(DATA / "tracks.json"),
+                          "--chains", "2", "--sweeps", "2", "--workers", "1", "--quiet", "--out", str(out)])
+    assert (rc, err) == (2, f"galileo: error: {p}: {message}\n")
     assert not out.exists()
 
 
@@ -382,13 +404,13 @@ def test_latent_limits_are_the_scene_bounds():
 # -- valid edges simulate to finite numbers ---------------------------------------------------------------------
 
 RAMP_EDGES = [
-    [(("objects", 0, "mass_kg"), 100), (("objects", 1, "mass_kg"), 1e-300)],
-    [(("objects", 0, "mass_kg"), 1e-300), (("objects", 1, "mass_kg"), 100)],
+    [(("objects", 0, "mass_kg"), 100), (("objects", 1, "mass_kg"), 1e-6)],
+    [(("objects", 0, "mass_kg"), 1e-6), (("objects", 1, "mass_kg"), 100)],
     [(("objects", 0, "friction"), 10), (("objects", 1, "friction"), 0), (("objects", 0, "restitution"), 1),
      (("objects", 1, "restitution"), 1)],
     [(("gravity_mps2",), 100), (("ramp", "angle_deg"), 59.99), (("objects", 0, "friction"), 0),
      (("collision_restitution",), 1)],
-    [(("gravity_mps2",), 0), (("ramp", "angle_deg"), 0)],
+    [(("gravity_mps2",), 5e-324), (("ramp", "angle_deg"), 0)],
     [(("objects", 0, "shape", "size_m"), [0.001, 0.001, 0.001]), (("objects", 1, "distance_m"), 2),
      (("objects", 1, "shape", "size_m"), [2, 2, 2])],
     [(("ramp", "length_m"), 10), (("ramp", "width_m"), 10), (("ramp", "thickness_m"), 1),
@@ -399,7 +421,7 @@ RAMP_EDGES = [
 ]
 SPLASH_EDGES = [
     [(("object", "density_g_cm3"), 25), (("object", "drag_water"), 100), (("gravity_mps2",), 100)],
-    [(("object", "density_g_cm3"), 1e-300), (("object", "drag_water"), 0), (("gravity_mps2",), 0)],
+    [(("object", "density_g_cm3"), 0.001), (("object", "drag_water"), 0), (("gravity_mps2",), 5e-324)],
     [(("object", "volume_cm3"), 100), (("object", "area_cm2"), 25), (("release_m",), [0, 0, 1.2]),
      (("start_step",), 1000)],
     [(("object", "volume_cm3"), 0.01), (("object", "area_cm2"), 0.05), (("tank", "water_density_kg_m3"), 5000)],
@@ -419,6 +441,27 @@ def test_values_at_the_bounds_simulate_to_finite_numbers(tmp_path, base, changes
     for o in traj["objects"]:
         for key in ("position_m", "velocity_mps"):
             assert np.all(np.isfinite(np.array(o[key], float))), (changes, key)
+
+
+@pytest.mark.parametrize("shape", [Shape("box", (0.001, 0.001, 0.001)), Shape("cylinder", (0.001, 0.001, 0.001)),
+                                   Shape("torus", (0.01, 0.01, 0.001)), Shape("box", (0.06, 0.05, 0.04))])
+def test_the_lightest_mass_a_scene_may_hold_slides_as_a_heavy_one(shape):
+    """Newton: an object sliding alone down a ramp accelerates at g (sin a - k cos a) whatever
+    its mass. Bullet takes a mass or an inertia below its epsilon (2.2e-16) for none: a 1e-18 kg
+    object never moved, a 1e-9 kg millimetre cylinder slid 18 mm off its path. At the lowest
+    mass the bound admits, the smallest shapes slide as they do at 1 kg to well within a
+    pixel (10 um; what separates them is Bullet's rounding: under 1 um)."""
+    from galileo.scenarios.ramp.physics import Simulator
+    from galileo.sim.bullet import client_lock
+
+    runs = []
+    for mass_kg in (1.0, ramp.MASS_KG.lo):
+        scene = ramp.default_scene(20.0, mass_kg=mass_kg, friction=0.2, target=None, shape=shape)
+        with client_lock:
+            runs.append(Simulator(scene).run(31, fps=30).position_m[0])
+    heavy, light = runs
+    assert np.linalg.norm(heavy[-1] - heavy[0]) > 0.5           # it slid (0.71 m in the second)
+    assert np.abs(light - heavy).max() < 1e-5
 
 
 # -- a run's length (what `simulate --frames/--fps` should check: Scene.check_simulation) ------------------

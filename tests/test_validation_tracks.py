@@ -356,7 +356,7 @@ BAD_RESULTS = {
     "map_lacks_a_latent_without_latents": (lambda d: (d["map"].pop("k2"), d.pop("latents")),
                                            "map: lacks latent 'k2'"),
     "map_value_a_string": (setter(["map", "m1_kg"], "0.3"), "map.m1_kg: expected a finite number, got '0.3'"),
-    "map_value_negative_mass": (setter(["map", "m2_kg"], -1.0), "map.m2_kg: -1 is outside (0, "),
+    "map_value_negative_mass": (setter(["map", "m2_kg"], -1.0), "map.m2_kg: -1 is outside [1e-06, "),
     "map_extra": (setter(["map", "zeta"], 1.0), "map.zeta: not a latent of this result"),
     "latents_of_another_scene": (setter(["latents"], ["m1_kg", "k1"]),
                                  "latents: ['m1_kg', 'k1'] are not the latents its scene infers"),

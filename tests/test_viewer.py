@@ -30,22 +30,24 @@ def test_edits_are_marked_on_the_traces(setup):
     others = np.delete(marks, edit - 1)
     assert np.all(np.isfinite(np.concatenate([np.asarray(d) for d in data])))
     assert marks[edit - 1] > others.max() and np.all(others == others[0])
-    assert "edits at sweeps" in v.trace_plot.title
+    assert v.trace_plot.title.endswith(f"; edits at sweep {edit}")
     assert "chains" in v.status_text.content and "R-hat" in v.status_text.content
 
 
 def test_chains_panel_says_not_converged_and_the_bar_is_not_full(setup):
-    """5 sweeps of 2 chains (all still in warm-up): every latent is shown not converged, in red,
-    with the reason, and the progress bar neither full nor done."""
+    """5 sweeps of 2 chains (all still in warm-up, sweeps 1-37): the verdict says so ("warming
+    up", issue 24: not "Not converged: 0 of 4 latents", nor "the latent never moved"), every
+    latent in orange, and the progress bar neither full nor done."""
     ctrl, v = setup
     v.refresh()
     st = ctrl.status()
     assert not st["convergence"]["converged"]
     box = v.convergence_box.content
-    assert "Not converged: 0 of 4 latents" in box
+    longest = max(c["sweeps"] for c in st["chains"].values())
+    assert f"Warming up (sweep {longest} of 37): no verdict before the kept draws" in box
     for n in ctrl.names:
-        assert f'data-latent="{n}" data-converged="false" style="color:{RHAT_COLOR}"' in box
-    assert box.count("not converged: R-hat cannot be computed") == 4
+        assert f'data-latent="{n}" data-converged="false" style="color:{ESS_COLOR}"' in box
+    assert box.count(": warming up</div>") == 4 and "never moved" not in box
     assert v.progress.value < 99.0 and v.progress.color is None
     assert "not converged yet (sweep target 75)" in v.status_text.content
     assert "moves: default, widths adapting (warm-up: sweeps 1-37)" in v.status_text.content
@@ -61,9 +63,9 @@ def test_convergence_html_colours_each_latent_and_shows_derived_quantities():
     conv = convergence(mixed, names)
     assert conv["per_latent"] == {"a": True, "b": False, "c": False}
     derived = {"ratio": {"q05": 0.5, "q50": 1.25, "q95": 2.0}, "log_ratio": {"q05": -0.7, "q50": 0.22, "q95": 0.69},
-               "volume_cm3": {"q05": 10.0, "q50": 12.0, "q95": 14.0}}
+               "volume_cm3": {"q05": 12.0, "q50": 12.0, "q95": 12.0, "fixed": True}}
     box = convergence_html(conv, derived)
-    assert "Not converged: 1 of 3 latents (R-hat &le; 1.01, ESS &ge; 400)" in box
+    assert "Not converged: 1 of 3 latents converged so far (R-hat &le; 1.01, ESS &ge; 400)" in box
     assert f'data-latent="a" data-converged="true" style="color:{CONVERGED_COLOR}"' in box
     assert f'data-latent="b" data-converged="false" style="color:{RHAT_COLOR}"' in box
     assert "<b>a</b> R-hat 1.00" in box and ": converged</div>" in box
@@ -75,7 +77,8 @@ def test_convergence_html_colours_each_latent_and_shows_derived_quantities():
     assert (f'data-latent="c" data-converged="false" style="color:{ESS_COLOR}"><b>c</b> R-hat 1.004, ESS 161: '
             "not converged: ESS 161 &lt; 400</div>") in line
     assert "<b>ratio</b>: median 1.25 (90% 0.5 &ndash; 2)" in box and "log_ratio" not in box
-    assert "<b>volume_cm3</b>: median 12" in box
+    # a quantity the scene fixes (the splash's volume) is not shown as a posterior (issue 24)
+    assert "<b>volume_cm3</b>: 12 (fixed by the scene, not inferred)" in box and "volume_cm3</b>: median" not in box
     good = convergence([m[:, :1] for m in mixed], names[:1])
     assert "Converged: all 1 latents" in convergence_html(good, {}) and "Posterior" not in convergence_html(good, {})
 
@@ -204,10 +207,19 @@ def test_log_likelihood_traces_are_below_the_best_on_an_asinh_scale(setup):
         ll = np.asarray(ctrl.logliks(c))
         np.testing.assert_array_equal(y[:len(ll)], ll - best)
     assert max(float(y.max()) for y in ys) == 0.0
-    assert v.trace_plot.scales["y"] == {"distr": 4, "asinh": TRACE_ASINH_NATS}
+    # both scales' ranges are the server's (issue 24: left to the page, x drifted to [0, 1] and
+    # the asinh y range cut the traces at -10): every sweep, every value and 0 inside
     lowest = min(float(y.min()) for y in ys)
-    label = f"{lowest:,.0f}"
-    assert label.startswith("-") and v.trace_plot.axes[1]["size"] == Y_AXIS_CHAR_PX * len(label) + Y_AXIS_PAD_PX
+    n = len(v.trace_plot.data[0])
+    y = v.trace_plot.scales["y"]
+    assert (y["distr"], y["asinh"]) == (4, TRACE_ASINH_NATS)
+    assert y["range"][0] < lowest and y["range"][1] > 0
+    assert v.trace_plot.scales["x"]["range"] == (1.0, float(max(n, 2)))
+    # ticks at 0, -10, -100, ... down to the lowest trace, and the axis wide enough for their labels
+    splits = v.trace_plot.axes[1]["splits"]
+    assert splits[0] == 0 and all(b == 10 * a for a, b in zip(splits[1:], splits[2:])) and splits[-1] >= y["range"][0]
+    widest = max(len(t) for t in v.trace_plot.axes[1]["values"])
+    assert v.trace_plot.axes[1]["size"] == Y_AXIS_CHAR_PX * widest + Y_AXIS_PAD_PX
 
 
 def test_settings_apply_exactly_what_was_typed_or_nothing(setup):
@@ -412,7 +424,68 @@ def test_progress_is_never_full_while_chains_run_and_edits_are_marked_where_they
         ev = ctrl.events[-1]
         assert ev["sweep"] == 9 and edit_sweep(ev) == 6
         v.refresh()
-        assert "(edits at sweeps [6])" in v.trace_plot.title
+        assert v.trace_plot.title.endswith("; edits at sweep 6")
     finally:
         v.close()
         ctrl.close()
+
+
+def test_one_chain_resumed_the_others_held_is_explained_and_set_follows_the_chain(demo_dir, tmp_path):
+    """Issue 24, item 8: after Resume chain on one chain (it ran a new block and was held) the
+    panel says why nothing runs ("paused; 1 of 2 chains below the sweep target 6"), not a bare
+    "0 running / 2 chains ... sweep target 6"; "Set chain's latents" shows the selected chain's
+    position (not chain 0's start with 16 digits), and a dimensionless latent's field has no
+    "(1)"."""
+    from galileo.video import read_video
+    from conftest import free_port, load_demo_frozen
+    from ui.controller import Controller
+    from ui.viewer import Viewer
+
+    scene, tracks, _ = load_demo_frozen()
+    ctrl = Controller(scene, tracks, chains=2, seed=4, workers=1, session_dir=tmp_path / "s", sweeps=3)
+    v = Viewer(ctrl, ctrl.likelihood_scene, tracks, read_video(demo_dir / "video.mp4")[0], port=free_port())
+    try:
+        v.follow_map.value = False
+        ctrl.run_sweeps(3)
+        ctrl.resume(1)
+        ctrl.run_sweeps(3)             # chain 1 alone, to the new target 6, then held
+        st = ctrl.status()
+        assert st["target_sweeps"] == 6 and [c["sweeps"] for c in st["chains"].values()] == [3, 6]
+        v.refresh()
+        assert "0 running / 2 chains" in v.status_text.content
+        assert ("paused; 1 of 2 chains below the sweep target 6: Resume all (or Resume chain) runs them on to it"
+                in v.status_text.content)
+        v.chain_dropdown.value = "1"
+        pos = ctrl.position(1)
+        assert {n: float(h.value) for n, h in v.set_inputs.items()} == pytest.approx(pos, rel=1e-5)
+        assert all(len(h.value) <= 12 for h in v.set_inputs.values())
+        assert v.set_inputs["k1"].label == "k1" and v.set_inputs["m1_kg"].label == "m1_kg (kg)"
+    finally:
+        v.close()
+        ctrl.close()
+
+
+def test_histograms_bin_where_the_draws_are_inside_the_prior():
+    """Issue 24, item 8: 30 bins over the whole prior made a narrow posterior one spike (k1's
+    on [0, 1]); the bins now span the kept draws inside the prior, a tenth wider each side; the
+    axes name the latent and its unit (none for a dimensionless one); draws a prior edit left
+    outside are not counted, and without any the bins span the prior."""
+    from galileo.latents import Latent
+    from ui.viewer import HIST_BINS, histogram_spec
+
+    k1 = Latent("k1", "1", (0.0, 1.0), "friction")
+    rng = np.random.default_rng(0)
+    kept = rng.normal(0.2185, 0.0004, 4000)
+    spec = histogram_spec(kept, np.array([0.1, 0.5, 0.9]), (0.0, 1.0), k1)
+    x, counts = spec["data"][0], spec["data"][1]
+    span = kept.max() - kept.min()
+    lo, hi = spec["scales"]["x"]["range"]
+    assert lo == pytest.approx(kept.min() - 0.1 * span) and hi == pytest.approx(kept.max() + 0.1 * span)
+    assert len(x) == HIST_BINS and counts.sum() == len(kept) and (counts > 0).sum() >= HIST_BINS // 2
+    assert spec["axes"][0]["label"] == "k1" and spec["axes"][1]["label"] == "draws"
+    mass = Latent("m1_kg", "kg", (0.001, 1.0), "mass")
+    assert histogram_spec(kept, kept[:3], (0.001, 1.0), mass)["axes"][0]["label"] == "m1_kg (kg)"
+    # after k1's prior became [0.3, 0.6]: none of these draws count, and the bins span the prior
+    moved = histogram_spec(kept, np.array([0.3]), (0.3, 0.6), k1)
+    assert moved["scales"]["x"]["range"] == (0.3, 0.6) and np.asarray(moved["data"][1]).sum() == 0
+    assert "no kept draws in the prior yet" in moved["title"]

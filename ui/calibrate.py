@@ -106,10 +106,18 @@ def safe_name(filename: str) -> str:
     return safe or "video"
 
 
+# a scene file's field paths, as this panel says them (a scene check the clicks' own did not catch)
+SCENE_WORDS = {"objects[0]": "the object", "objects[1]": "the target", "length_m": "Length (m)",
+               "width_m": "Width (m)", "angle_deg": "Angle (deg)"}
+
+
 def for_panel(message: str) -> str:
-    """A library message with the command line's flags named as this panel's fields."""
+    """A library message with the command line's flags, and a scene file's field paths, named
+    as this panel's fields."""
     for flag, name in FIELD_NAMES.items():
         message = message.replace(f"give {flag}", f"enter {name}").replace(flag, name)
+    for path, words in SCENE_WORDS.items():
+        message = message.replace(path, words)
     return message
 
 

@@ -28,19 +28,32 @@ that they can be watched and steered:
   loglik, values), ...]} where `sweep` is the chain's sweep count (its sample index + 1), and
   "event" with each event dict, in the order things happened. Without a background thread
   an event is delivered by the steering call itself. "error" with {"message"} if a round fails
-  in the background thread (the thread then stops).
+  in the background thread (the thread then stops). "session" with {"text", "saving"} when
+  the session folder was lost (see below).
 * A worker process that dies (killed, out of memory) breaks the pool: the round's results,
   none committed, are dropped, the pool is made anew (spawned: other threads exist by then)
   and the round runs again from the chains' committed state and random streams, so the
   chains are those of a run in which nothing died. A "worker_died" event records it (the
   sweep, which workers and how, the restarts so far), a line on stderr says it, and
-  `status()["workers"]` carries it for the viewer. After WORKER_DEATHS_IN_A_ROW deaths with no
-  round completed between them within WORKER_DEATHS_WINDOW_S, every running chain pauses
-  instead (a "pause" event with the reason); resuming starts a new pool. `resume` also
-  restarts the background thread when an error stopped it.
+  `status()["workers"]` carries it for the viewer. A worker that stops answering (stopped,
+  stuck) is handled the same way: a round whose results have not all come within its deadline
+  (ROUND_DEADLINE_FLOOR_S plus ROUND_DEADLINE_FACTOR times the slowest sweep so far times the
+  sweeps a worker runs in the round) kills the pool's workers and runs again on a new pool (the
+  event's `cause` is "hung"). After WORKER_DEATHS_IN_A_ROW deaths or hangs with no round
+  completed between them (deaths within WORKER_DEATHS_WINDOW_S; a hang takes its deadline to
+  notice, so hangs count however far apart), every running chain pauses instead (a "pause"
+  event with the reason); resuming starts a new pool. `resume` also restarts the background
+  thread when an error stopped it.
 * With a `session_dir` the state is saved there (see `ui.session`) at most every
   `save_every_s` while rounds run, on `stop()`, `close()` and `save()`; `Controller.load`
-  restores it exactly and the chains go on as if never interrupted.
+  restores it exactly and the chains go on as if never interrupted (with `paused=True`, as
+  the app reopens a session, they wait for Resume). The controller holds the session's lock
+  (`ui.session.SessionLock`) until `close()`: a second controller or app on the folder is
+  refused. A folder deleted, moved or replaced while the controller runs is noticed at the
+  next save (checked at least every `save_every_s` while the background thread runs): nothing
+  more is written there; the whole session is written to `<name>-recovered-<time>/` beside it
+  and saved there from then on (`ui.session.recover`), or, if that fails, nothing is saved.
+  Either way a line on stderr and `status()["session"]` say so.
 * Moves (`moves`, as `galileo infer --moves`): "default" gives every chain the default move
   set's exact joint moves (`galileo.runner.default_moves`: the scenario's own and an adaptive
   joint random walk) and adapts its narrow widths (and the moves' widths)
@@ -81,8 +94,8 @@ from galileo.errors import GalileoError
 from galileo.latents import as_number, by_name, check_bounds, check_noise, check_widths
 from galileo.mcmc import chain_rng, move_code
 from galileo.results import MIN_ESS, RHAT_TARGET, burn_in, convergence, derived_summaries
-from galileo.runner import (MIN_BLOCK_SWEEPS, MOVE_SETS, PROPOSAL_FIELDS, ChainTask, Problem, RunConfig, Settings,
-                            WorkerDied, default_moves, run_task, scene_for_moves)
+from galileo.runner import (MIN_BLOCK_SWEEPS, MOVE_SETS, PROPOSAL_FIELDS, ChainTask, LocalPool, Problem, RunConfig,
+                            Settings, WorkerDied, WorkerHung, default_moves, run_task, scene_for_moves)
 
 from . import session as sess
 
@@ -94,6 +107,10 @@ PAPER_SWEEPS = 75          # the paper's sweeps per chain (the sweep target's an
 # (no round completed between them) within this many seconds: then every chain pauses
 WORKER_DEATHS_IN_A_ROW = 3
 WORKER_DEATHS_WINDOW_S = 60.0
+# a round's deadline (then its workers count as hung): this floor (a new pool's first round builds
+# its likelihoods; a busy machine) plus this many times the slowest sweep so far, per sweep a worker runs
+ROUND_DEADLINE_FLOOR_S = 60.0
+ROUND_DEADLINE_FACTOR = 10.0
 
 
 # -- chain state -----------------------------------------------------------------------------------------
@@ -164,6 +181,11 @@ class _Chain:
                 "proposal": sess.proposal_to_json(self.proposal), "moves": [sess.move_to_json(m) for m in self.moves]}
 
 
+def _inside(x: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """Whether latent vectors (..., D) lie inside prior bounds (D, 2), per vector."""
+    return np.all((x >= bounds[:, 0]) & (x <= bounds[:, 1]), axis=-1)
+
+
 def _checked_init(info: dict, dim: int) -> dict:
     """A session's recorded init, its proposal checked (a damaged one starts later chains
     from the prior instead)."""
@@ -191,9 +213,12 @@ class Controller:
                  workers: int | None = None, settings: Settings | None = None,
                  session_dir: str | Path | None = None, save_every_s: float = 1.0, executor=None, init=None,
                  moves: str = "default", sweeps: int | None = PAPER_SWEEPS, warmup: int | None = None,
-                 until_rhat: float | None = None, min_ess: float = MIN_ESS, max_sweeps: int | None = None):
+                 until_rhat: float | None = None, min_ess: float = MIN_ESS, max_sweeps: int | None = None,
+                 session_lock: sess.SessionLock | None = None):
         """`executor`: anything with `map` (default: a `galileo.runner.LocalPool` of `workers`
-        processes, always separate processes: the viewer simulates in this one). `init`: as
+        processes, always separate processes: the viewer simulates in this one). `session_lock`:
+        the lock of `session_dir` when the caller took it as it made the folder (else it is
+        taken here; GalileoError if another app holds it). `init`: as
         `galileo.runner.infer`'s (e.g. `galileo.recognition.model.recognition_init`): its
         proposal decides where this and every later chain starts (recorded in the session).
 
@@ -220,7 +245,8 @@ class Controller:
         scenario = registry.of(scene)
         lik_scene = scenario.prepare(scene, tracks)   # checks scene against tracks
         latents = scenario.latents(lik_scene)
-        settings = (settings or Settings.default(latents, scenario.noise)).checked(latents, scenario.noise)
+        settings = (settings or Settings.default(latents, scenario.noise, scenario.paper_widths if moves == "paper"
+                                                 else None)).checked(latents, scenario.noise)
         if session_dir is not None:
             session_dir = Path(session_dir)
             if (session_dir / sess.CHAINS_FILE).exists():
@@ -250,11 +276,20 @@ class Controller:
                                  "init": self.init_info, "moves": self.moves_set, "warmup": self._warmup,
                                  "joint_moves": [sess.move_to_json(m) for m in self._moves0],
                                  "sweeps": self._target, "until": copy.deepcopy(self._until)})
-        if self.session_dir is not None:
-            self.session_dir.mkdir(parents=True, exist_ok=True)
+        if self.session_dir is None:
+            self._start_pool()
+            return
+        self.session_dir.mkdir(parents=True, exist_ok=True)
+        self._session_lock = session_lock or sess.SessionLock(self.session_dir)
+        try:
             sess.write_static(self.session_dir, self._scene_json, self._tracks_json)
+            self._session_lock.keep(sess.VIDEO_FILE)
             self.save()
-        self._start_pool()
+            self._start_pool()
+        except BaseException:
+            if session_lock is None:
+                self._session_lock.release()
+            raise
 
     def _setup(self, scene, tracks, latents, seed, workers, settings, session_dir, save_every_s, executor) -> None:
         self.scene, self.tracks = scene, tracks
@@ -312,6 +347,10 @@ class Controller:
         self._workers_note: dict | None = None   # the last worker death: {"text", "sweep", "restarted", ...}
         self._want_running = False         # start() called and no stop() since
         self._pools_made = 0
+        self._slowest_sweep_s = 0.0        # the slowest one-sweep task so far (worker seconds): the round deadline
+        self._session_lock: sess.SessionLock | None = None
+        self._session_note: str | None = None   # the session folder was lost: what happened, where it is saved now
+        self._saving = session_dir is not None  # False once the folder is lost and could not be recovered
 
     # -- workers ------------------------------------------------------------------------------------------
     def _start_pool(self):
@@ -319,20 +358,20 @@ class Controller:
         any runner or server thread exists; a later one (after a worker died) is spawned: by
         then a fork would copy the viewer's sockets and whatever locks other threads hold."""
         if self._executor is None:
-            from galileo.runner import LocalPool
-
             self._executor = LocalPool(self.workers, context="spawn" if self._pools_made else "fork")
             self._pools_made += 1
         return self._executor
 
     def _worker_died(self, error: Exception, tasks: list) -> bool:
-        """A worker of the controller's own pool died during a round (killed, out of memory):
-        the broken pool is shut down and the round's results, none of which were committed, are
-        dropped. Records a "worker_died" event, says so on stderr, and returns True to run the
-        round again on a new pool (the chains' committed state and random streams are where they
-        were, so the chains are those of a run in which no worker died), or, after
-        WORKER_DEATHS_IN_A_ROW deaths with no round completed between them within
-        WORKER_DEATHS_WINDOW_S, pauses every running chain and returns False."""
+        """A worker of the controller's own pool died during a round (killed, out of memory) or
+        stopped answering (`WorkerHung`: no results by the round's deadline; its workers were
+        killed): the broken pool is shut down and the round's results, none of which were
+        committed, are dropped. Records a "worker_died" event (`cause` "died" or "hung"), says so
+        on stderr, and returns True to run the round again on a new pool (the chains' committed
+        state and random streams are where they were, so the chains are those of a run in which
+        no worker failed), or, after WORKER_DEATHS_IN_A_ROW failures with no round completed
+        between them (deaths within WORKER_DEATHS_WINDOW_S), pauses every running chain and
+        returns False."""
         old, self._executor = self._executor, None   # (None: the new pool's workers failed to start)
         if old is not None:
             try:
@@ -340,28 +379,35 @@ class Controller:
             except Exception:  # noqa: BLE001 - a broken pool's shutdown must not hide the death
                 log.exception("shutting a broken worker pool down failed")
         dead = old.dead_workers() if hasattr(old, "dead_workers") else []
+        hung = isinstance(error, WorkerHung)
         now = time.monotonic()
         sweep = max((int(t.sweep) for t in tasks), default=0) + 1   # the sweep the running chains were on
         who = ", ".join(f"pid {w['pid']} {w['how']}" for w in dead) or " ".join(str(error).split())
+        if hung:
+            who += f"; no result in {error.timeout_s:.0f} s"
+        what = "stopped responding" if hung else "died"
         with self._lock:
-            self._deaths = [t for t in self._deaths if now - t <= WORKER_DEATHS_WINDOW_S] + [now]
+            # (a hang takes its deadline to notice: hangs in a row count however far apart)
+            self._deaths = [(t, h) for t, h in self._deaths if h or now - t <= WORKER_DEATHS_WINDOW_S] + [(now, hung)]
             give_up = len(self._deaths) >= WORKER_DEATHS_IN_A_ROW
-            detail = {"sweep": sweep, "workers": dead, "message": " ".join(str(error).split()),
-                      "in_a_row": len(self._deaths)}
+            detail = {"sweep": sweep, "cause": "hung" if hung else "died", "workers": dead,
+                      "message": " ".join(str(error).split()), "in_a_row": len(self._deaths)}
             if give_up:
                 ids = [c for c, ch in sorted(self._chains.items()) if not ch.removed and not ch.paused]
                 for c in ids:
                     self._chains[c].paused = True
                     self._chains[c].held = False
-                text = (f"inference workers died {len(self._deaths)} times in a row within "
-                        f"{WORKER_DEATHS_WINDOW_S:g} s (last during sweep {sweep}: {who}): every chain is paused; "
-                        "Resume all starts a new pool")
+                hangs = any(h for _, h in self._deaths)
+                text = (f"inference workers {'died or stopped responding' if hangs else 'died'} {len(self._deaths)} "
+                        f"times in a row{'' if hangs else f' within {WORKER_DEATHS_WINDOW_S:g} s'} (last during sweep "
+                        f"{sweep}: {who}): every chain is paused; Resume all starts a new pool")
                 detail.update(restarted=False, restarts=self._restarts, outcome=text)
                 self._event("worker_died", detail)
-                self._event("pause", {"chains": ids, "reason": "inference workers keep dying"})
+                self._event("pause", {"chains": ids, "reason": "inference workers keep dying"
+                                      + (" or stopping" if hangs else "")})
             else:
                 self._restarts += 1
-                text = (f"an inference worker died during sweep {sweep} ({who}); the worker pool was restarted "
+                text = (f"an inference worker {what} during sweep {sweep} ({who}); the worker pool was restarted "
                         f"({self._restarts} time{'s' if self._restarts > 1 else ''}) and sweep {sweep} runs again")
                 detail.update(restarted=True, restarts=self._restarts)
                 self._event("worker_died", detail)
@@ -391,7 +437,9 @@ class Controller:
                 self._in_flight = True
             while True:
                 try:
-                    results = list(self._start_pool().map(run_task, tasks))
+                    ex = self._start_pool()
+                    deadline = {"timeout_s": self._round_deadline_s(len(tasks))} if isinstance(ex, LocalPool) else {}
+                    results = list(ex.map(run_task, tasks, **deadline))
                     break
                 except BaseException as e:
                     if isinstance(e, WorkerDied) and self._own_executor:
@@ -414,6 +462,7 @@ class Controller:
                     raise
             with self._lock:
                 self._deaths = []
+                self._slowest_sweep_s = max([self._slowest_sweep_s] + [float(r["seconds"]) for r in results])
                 out, held = [], []
                 noise = {t.chain: t.noise for t in tasks}
                 for r in results:
@@ -446,6 +495,13 @@ class Controller:
                 self._until_step()
                 self._cond.notify_all()
             return True
+
+    def _round_deadline_s(self, n_tasks: int) -> float:
+        """How long a round of `n_tasks` one-sweep tasks may take before its workers count as
+        hung: generous (a busy machine, a chain in a slow corner of the prior), yet minutes less
+        than waiting for ever."""
+        per_worker = math.ceil(n_tasks / max(1, getattr(self._executor, "workers", self.workers)))
+        return ROUND_DEADLINE_FLOOR_S + ROUND_DEADLINE_FACTOR * self._slowest_sweep_s * per_worker
 
     def _count(self, site: np.ndarray, accepted: np.ndarray) -> None:
         """Acceptance counts: per latent (single-site proposals) and per joint move."""
@@ -563,6 +619,8 @@ class Controller:
             if self._executor is not None and self._own_executor:
                 self._executor.shutdown()
             self._executor = None
+        if self._session_lock is not None:   # (after the workers: another app may open the session now)
+            self._session_lock.release()
 
     def __enter__(self) -> "Controller":
         return self
@@ -698,11 +756,13 @@ class Controller:
             self._event("widths", detail)
         self._steer(apply)
 
-    def run_until(self, until_rhat: float | None, min_ess: float = MIN_ESS, max_sweeps: int | None = None) -> None:
+    def run_until(self, until_rhat: float | None, min_ess: float = MIN_ESS, max_sweeps: int | None = None,
+                  verdict: bool = True) -> None:
         """Turn run-until-converged on (or off with None): chains held at the sweep target run
         on in blocks until every latent's R-hat <= until_rhat and its ESS >= min_ess, or the
         target reaches max_sweeps (default: 20 x the target). With every chain stopped, the
-        verdict comes at once. Recorded as a "run_until" event."""
+        verdict comes at once, unless `verdict` is False (a reopened session: the criteria only;
+        nothing runs until Resume). Recorded as a "run_until" event."""
         with self._lock:
             target = self._target
             if target is None:   # no target yet: the running chains stop for a verdict a block from now
@@ -716,7 +776,8 @@ class Controller:
             if until is not None:
                 self._min_ess = until["min_ess"]
             self._event("run_until", {"until": copy.deepcopy(until), "sweeps": self._target})
-            self._until_step(base_from_paused=True)
+            if verdict:
+                self._until_step(base_from_paused=True)
         self._steer(apply)
 
     def _check_active(self, chain: int) -> None:
@@ -738,12 +799,17 @@ class Controller:
                 self._chains[c].paused = paused
                 self._chains[c].held = False   # the user's pause, or running on past the target
             detail = {"chains": changed}
-            if changed and not paused and self._until is None and self._target is not None and self._block:
-                # chains resumed at or past the sweep target run one more block (--sweeps) and pause
-                # again, so the target (and the progress towards it) always lies ahead of them
+            if changed and not paused and self._target is not None:
+                # chains resumed at or past the sweep target run one more block and pause again, so
+                # the target (and the progress towards it) always lies ahead of them: --sweeps, or
+                # running until converged the batch runner's next block (then the verdict)
                 top = max(self._chains[c].sweep for c in changed)
-                if top >= self._target:
-                    self._target = top + self._block
+                u = self._until
+                step = self._block if u is None else max(MIN_BLOCK_SWEEPS, top // 2)
+                if u is not None and top < u["max_sweeps"]:
+                    step = min(step, u["max_sweeps"] - top)
+                if top >= self._target and step:
+                    self._target = top + step
                     detail["target"] = self._target
             if changed:
                 self._event("pause" if paused else "resume", detail)
@@ -966,14 +1032,26 @@ class Controller:
 
     def map(self) -> tuple[int, int, dict[str, float], float] | None:
         """(chain, index, values, loglik) of the best sample of all chains (removed ones too)
-        among those scored under the noise in force: log-likelihoods under another sigma are
-        on another scale and are not compared. None before any sample under it (pending)."""
+        among those scored under the noise in force and inside the prior in force:
+        log-likelihoods under another sigma are on another scale and are not compared, and a
+        sample a prior edit has left out is not a posterior mode. None before any such sample
+        (pending)."""
         with self._lock:
             best = None
             noise = float(self._settings.noise)
+            bounds = self._settings.bounds_array(self.names)
             for c, ch in sorted(self._chains.items()):
                 b = ch.best.get(noise)
-                if b is not None and (best is None or b[1] > best[2]):
+                if b is None:
+                    continue
+                if not _inside(ch.samples.a[b[0]], bounds):   # after a prior edit: the best inside it
+                    n = ch.samples.n
+                    ok = (ch.noise.a[:n] == noise) & _inside(ch.samples.a[:n], bounds)
+                    if not ok.any():
+                        continue
+                    i = int(np.argmax(np.where(ok, ch.logliks.a[:n], -np.inf)))
+                    b = (i, float(ch.logliks.a[i]))
+                if best is None or b[1] > best[2]:
                     best = (c, b[0], b[1])
             if best is None:
                 return None
@@ -986,6 +1064,9 @@ class Controller:
             if self.map() is not None or not any(len(ch.samples) for ch in self._chains.values()):
                 return None
             spec = self.scenario.noise
+            noise = float(self._settings.noise)
+            if any(noise in ch.best for ch in self._chains.values()):
+                return "MAP pending: no sample inside the prior in force yet (a prior edit left them all out)"
             return (f"MAP pending: no sample scored under {spec.name} = {self._settings.noise:g} {spec.unit} yet "
                     "(earlier log-likelihoods are under another sigma)")
 
@@ -999,14 +1080,17 @@ class Controller:
         "warmup", "adapting" (some chain still adapts its widths)}, "target_sweeps", "until"
         (run until converged: {"until_rhat", "min_ess", "max_sweeps"} | None),
         "convergence": `galileo.results.convergence` of the active chains' kept draws (burn-in
-        max(warm-up, half)) against until_rhat (or 1.01) and min_ess, plus "kept_draws" and
+        max(warm-up, half), and none from before the last prior edit) against until_rhat (or
+        1.01) and min_ess, plus "kept_draws" and
         "burn_in" (of the longest chain), "r_hat": {latent: R-hat | None} (the same),
         "derived": the scenario's derived quantities' posterior summaries on the same kept
         draws (as `InferenceResult.derived_posterior`), "settings", "map": {"chain", "index",
         "values", "loglik", "noise"} | None, "map_note" (why no MAP: pending after a sigma
         edit) | None, "error": why the background thread stopped | None, "workers": {"restarts" (pools
-        made anew after a worker died), "last_death": {"text", "sweep", "restarted", "restarts",
-        "gave_up" (every chain paused instead), "time"} | None}}."""
+        made anew after a worker died or hung), "last_death": {"text", "sweep", "restarted", "restarts",
+        "gave_up" (every chain paused instead), "time"} | None}, "session": {"folder" (where the
+        session is saved; None: nowhere), "saving" (False once the folder was lost and could not
+        be recovered), "note" (what happened to the folder) | None}}."""
         with self._lock:
             chains = {}
             for c, ch in sorted(self._chains.items()):
@@ -1044,7 +1128,9 @@ class Controller:
                    "map": None if best is None else {"chain": best[0], "index": best[1], "values": best[2],
                                                      "loglik": best[3], "noise": float(self._settings.noise)},
                    "map_note": self.map_note(), "error": self._error,
-                   "workers": {"restarts": self._restarts, "last_death": copy.deepcopy(self._workers_note)}}
+                   "workers": {"restarts": self._restarts, "last_death": copy.deepcopy(self._workers_note)},
+                   "session": {"folder": None if self.session_dir is None else str(self.session_dir),
+                               "saving": self._saving, "note": self._session_note}}
         if kept is not None:   # outside the lock: arviz takes some milliseconds
             conv = self._convergence_of(kept, rhat_target, self._min_ess)
             conv["kept_draws"] = int(sum(len(k) for k in kept))
@@ -1057,12 +1143,17 @@ class Controller:
         return out
 
     def _kept_locked(self) -> list[np.ndarray]:
-        """The active chains' kept draws (copies): after max(warm-up, half) of each."""
+        """The active chains' kept draws (copies): after max(warm-up, half) of each, and after
+        the last prior (bounds) edit: draws before it sample another posterior."""
+        since = {}
+        for e in self._events:
+            if e["kind"] == "bounds":
+                since.update({int(c): int(k) for c, k in (e.get("chain_sweeps") or {}).items()})
         out = []
-        for _, ch in sorted(self._chains.items()):
+        for c, ch in sorted(self._chains.items()):
             if not ch.removed:
                 n = ch.samples.n
-                out.append(ch.samples.a[burn_in(n, self._warmup):n].copy())
+                out.append(ch.samples.a[max(burn_in(n, self._warmup), min(since.get(c, 0), n)):n].copy())
         return out
 
     def _convergence_of(self, kept: list[np.ndarray], rhat_target: float, min_ess: float) -> dict:
@@ -1077,13 +1168,17 @@ class Controller:
 
     # -- sessions ------------------------------------------------------------------------------------------------
     def _maybe_save(self) -> None:
-        if (self.session_dir is not None and self._dirty
-                and time.monotonic() - self._last_save >= self.save_every_s):
+        """Save if something changed, at most every save_every_s; as often, check that the
+        folder is still the session's (a folder lost while the chains are paused is noticed too)."""
+        if (self.session_dir is not None and self._saving and time.monotonic() - self._last_save >= self.save_every_s
+                and (self._dirty or self._session_lock.lost())):
             self.save()
 
     def save(self) -> None:
-        """Write the session now (no-op without a session_dir)."""
-        if self.session_dir is None:
+        """Write the session now (no-op without a session_dir, or once its folder was lost and
+        could not be recovered). Never into a folder deleted, moved or replaced since it was
+        opened: the whole session goes to a new folder beside it instead (`_session_lost`)."""
+        if self.session_dir is None or not self._saving:
             return
         with self._save_lock:
             with self._lock:
@@ -1104,16 +1199,69 @@ class Controller:
                           "target_sweeps": self._target, "until": copy.deepcopy(self._until),
                           "chains": [copy.deepcopy(ch.to_json()) for _, ch in sorted(self._chains.items())]}
                 self._dirty = False
-            sess.write_state(self.session_dir, settings=settings, events=events, chains=chains, record=record)
+            state = {"settings": settings, "events": events, "chains": chains, "record": record}
+            try:
+                sess.write_state(self.session_dir, **state, lock=self._session_lock)
+            except (OSError, GalileoError):
+                why = self._session_lock.lost() if self._session_lock is not None else None
+                if why is None:
+                    self._dirty = True
+                    raise
+                self._session_lost(why, state)
             self._last_save = time.monotonic()
 
+    def _session_lost(self, why: str, state: dict) -> None:
+        """The session folder is gone (deleted, moved, replaced: `why`): write the whole session
+        to a new folder beside it and save there from now on, or, if that fails, stop saving.
+        Says which on stderr, in status()["session"] and to the listeners ("session")."""
+        old = self.session_dir
+        try:
+            lock = sess.recover(self._session_lock, scene_json=self._scene_json, tracks_json=self._tracks_json,
+                                **state)
+        except (OSError, GalileoError) as e:
+            lock, failed = None, " ".join(str(e).split())
+        self._session_lock.release()    # (a moved folder may be opened by another app now)
+        if lock is None:
+            self._saving = False
+            level, text = "error", (f"the session folder {old} {why}: nothing more is saved (no new folder could be "
+                                    f"written beside it: {failed}); the chains go on in this app")
+        else:
+            self._session_lock, self.session_dir = lock, lock.folder
+            level, text = "warning", (f"the session folder {old} {why}: the whole session is saved in {lock.folder} "
+                                      "from now on")
+        with self._lock:
+            self._session_note = text
+            self._notices.append(("session", {"text": text, "saving": self._saving}))
+        print(f"galileo: {level}: {text}", file=sys.stderr, flush=True)
+        log.info("%s", text)
+
     @classmethod
-    def load(cls, session_dir: str | Path, *, workers: int | None = None,
-             save_every_s: float = 1.0, executor=None, sweeps: int | None = None) -> "Controller":
+    def load(cls, session_dir: str | Path, *, workers: int | None = None, save_every_s: float = 1.0, executor=None,
+             sweeps: int | None = None, paused: bool = False) -> "Controller":
         """Restore a saved session exactly; its chains go on from where they stopped (with
-        their adapted widths and moves). `sweeps`: the sweep target of a session recorded
-        before the controller kept one (a session's own target wins)."""
-        folder = sess.check_folder(session_dir)
+        their adapted widths and moves), or, with `paused`, every chain that was running pauses
+        (a "pause" event) until `resume`. `sweeps`: the sweep target of a session recorded
+        before the controller kept one (a session's own target wins). The session's lock is
+        taken first: a session another app (or controller) has open is refused (GalileoError)
+        before anything is read or started."""
+        lock = sess.SessionLock(session_dir)
+        try:
+            self = cls._restore(lock, workers, save_every_s, executor, sweeps)
+        except BaseException:
+            lock.release()
+            raise
+        if paused:
+            with self._lock:
+                ids = [c for c, ch in sorted(self._chains.items()) if not ch.removed and not ch.paused]
+                for c in ids:
+                    self._chains[c].paused = True
+                if ids:
+                    self._event("pause", {"chains": ids, "reason": "session reopened: Resume runs them on"})
+        return self
+
+    @classmethod
+    def _restore(cls, lock: sess.SessionLock, workers, save_every_s, executor, sweeps) -> "Controller":
+        folder = sess.check_folder(lock.folder)
         path = folder / sess.SCENE_FILE
         scene_json = sess.read_json_file(folder, sess.SCENE_FILE)
         with sess.reading(path):
@@ -1239,6 +1387,8 @@ class Controller:
             self._chains[c] = ch
         self._dirty = False
         self._last_save = time.monotonic()
+        self._session_lock = lock
+        lock.keep(sess.VIDEO_FILE)
         self._start_pool()
         return self
 

@@ -9,6 +9,7 @@ Entity layout (timelines in brackets):
     video/tracks/<object>      Points2D: KLT features, else the projected centre [frame]
     video/tracks/<object>/center   Points2D: projected centre, labelled [frame]
     video/tracks/<object>/path     LineStrips2D: the centre's whole path (static)
+    scene/<mesh>               Mesh3D (static): the scene's geometry (ramp, tank, water; ControllerFeed)
     observed/<object>          LineStrips3D (static) + Points3D [frame]: tracked positions, metres
     chains/<c>/loglik          Scalars [sweep]   (sweep s = the chain's sample s - 1, from 1)
     chains/<c>/<latent>        Scalars [sweep]   (the scenario's latents, by name)
@@ -54,9 +55,12 @@ from typing import Sequence
 import numpy as np
 
 # session.rrd is written without rerun's footer (below, `write_footer=False`), and rerun warns
-# about that on stderr each time a file sink opens; read by rerun's Rust logging when the SDK
-# is first imported (a RUST_LOG the user set is kept)
-os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error")
+# about that on stderr each time a file sink opens; its channels warn, many times a minute and in
+# colour, when a viewer reads slower than the app logs ("Sender has been blocked for over ...":
+# nothing for a user to do); read by rerun's Rust logging when the SDK is first imported (a
+# RUST_LOG the user set is kept)
+os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error,re_quota_channel=error,"
+                                  "re_log_channel=error")
 import rerun as rr  # noqa: E402
 import rerun.blueprint as rrb
 
@@ -107,9 +111,33 @@ def _is_loopback(host: str) -> bool:
     return host in LOOPBACK_HOSTS or host.startswith("127.")
 
 
+EVENT_ITEMS_SHOWN = 6      # a list or mapping longer than this in an event reads as its length
+
+
+def _short(v) -> str:
+    """A value of an event's detail in a few words: numbers to 4 digits, long lists counted."""
+    if isinstance(v, bool) or v is None:
+        return {True: "yes", False: "no", None: "none"}[v]
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, dict):
+        if len(v) > EVENT_ITEMS_SHOWN:
+            return f"({len(v)} entries)"
+        return ", ".join(f"{k} {_short(x)}" for k, x in v.items()) or "none"
+    if isinstance(v, (list, tuple)):
+        if len(v) > EVENT_ITEMS_SHOWN:
+            return f"({len(v)} values)"
+        return "[" + ", ".join(_short(x) for x in v) + "]"
+    return str(v)
+
+
 def event_text(ev: dict) -> str:
-    """How a controller event reads in the `events` log."""
-    return f"{ev['kind']}: {ev['detail']}"
+    """How a controller event reads in the `events` log: its kind, then each detail as
+    "name value" (e.g. "sigma: sigma 0.08; chain sweeps (16 entries)"), never a Python dict."""
+    detail = ev.get("detail")
+    parts = ([f"{str(k).replace('_', ' ')} {_short(v)}" for k, v in detail.items()] if isinstance(detail, dict)
+             else [_short(detail)] if detail not in (None, {}) else [])
+    return f"{ev['kind']}" + (": " + "; ".join(parts) if parts else "")
 
 
 def _check_reachable(url: str, timeout_s: float = 2.0) -> None:
@@ -337,8 +365,10 @@ class RerunLogger:
         latents = self._latents
 
         def series(name: str, leaf: str) -> rrb.TimeSeriesView:
+            # no legend: 16 (or the splash's 50) chains' names covered the plots
             contents = [f"/chains/{c}/{leaf}" for c in chains] or [f"/chains/0/{leaf}"]
-            return rrb.TimeSeriesView(name=name, origin="/chains", contents=contents)
+            return rrb.TimeSeriesView(name=name, origin="/chains", contents=contents,
+                                      plot_legend=rrb.PlotLegend(visible=False))
 
         traces: list = [series("log-likelihood", "loglik")]
         shares = [2]
@@ -355,13 +385,14 @@ class RerunLogger:
         shares.append(3)
         left = rrb.Vertical(
             rrb.Spatial2DView(name="video + tracks", origin="/video"),
-            rrb.Spatial3DView(name="simulation", origin="/", contents=["/sim/**", "/observed/**"]),
+            rrb.Spatial3DView(name="simulation", origin="/", contents=["/scene/**", "/sim/**", "/observed/**"]),
             rrb.TextLogView(name="events", origin="/events"),
             row_shares=[3, 3, 1],
         )
         right = rrb.Vertical(*traces, row_shares=shares)
         return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[2, 3]),
-                             rrb.TimePanel(timeline="sweep"), collapse_panels=False)
+                             rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
+                             rrb.TimePanel(timeline="sweep", state="expanded"))
 
     def _resend_blueprint(self) -> None:
         self._dirty_sweep = None
@@ -497,6 +528,21 @@ class RerunLogger:
         self._at("sweep", sweep)
         self.stream.log("events", rr.TextLog(str(text), level=level))
 
+    # -- the scene ---------------------------------------------------------------------
+
+    def log_scene(self, drawing) -> None:
+        """The scene's static geometry (`Scenario.drawing(scene).static`: the ramp, the tank, the
+        water) at scene/<name>, static, so the simulation view shows where the paths run."""
+        if not self.enabled:
+            return
+        self._at()
+        for m in drawing.static:
+            rgba = [*m.color, int(round(255 * float(m.opacity)))]
+            self.stream.log(f"scene/{'/'.join(_part(x) for x in m.name.split('/'))}",
+                            rr.Mesh3D(vertex_positions=np.asarray(m.vertices, np.float32),
+                                      triangle_indices=np.asarray(m.faces, np.uint32), albedo_factor=rgba),
+                            static=True)
+
     # -- video and tracks ------------------------------------------------------------
 
     def log_video(self, video_path: str | Path, tracks=None, fps: float | None = None) -> None:
@@ -597,8 +643,8 @@ class RerunLogger:
             if ok.any():
                 obase = f"observed/{_part(o.name)}"
                 self.stream.log(obase, rr.LineStrips3D(_finite_runs(pos), colors=[OBSERVED_COLOR],
-                                                       radii=[0.002], labels=[f"{o.name} (observed)"]),
-                                static=True)
+                                                       radii=[0.002], labels=[f"{o.name} (observed)"],
+                                                       show_labels=False), static=True)
                 self.stream.log(obase, rr.Points3D.from_fields(colors=[OBSERVED_COLOR], radii=[0.01]), static=True)
                 self.stream.send_columns(obase, indexes=[rr.TimeColumn("frame", sequence=np.flatnonzero(ok))],
                                          columns=rr.Points3D.columns(positions=pos[ok]))
@@ -633,8 +679,9 @@ class RerunLogger:
             entity = f"sim/{kind}/{_part(name)}"
             pos = pos_all[i]
             ok = np.all(np.isfinite(pos), axis=1)
+            # (labels on hover: drawn, the observed, MAP and selected paths' labels lay on each other)
             path = rr.LineStrips3D(_finite_runs(pos), colors=[color], radii=[0.003],
-                                   labels=[f"{name} ({SIM_KINDS[kind]}{note})"])
+                                   labels=[f"{name} ({SIM_KINDS[kind]}{note})"], show_labels=False)
             self._at()
             if sweep is None:
                 self.stream.log(entity, path, static=True)
@@ -756,6 +803,7 @@ class ControllerFeed:
         self._thread: threading.Thread | None = None
         if logger.enabled:
             logger._before_close.append(self.close)
+            logger.log_scene(ctrl.scenario.drawing(ctrl.likelihood_scene))
 
     # -- the listener ----------------------------------------------------------------
 

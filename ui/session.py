@@ -24,14 +24,30 @@ settings, so a crash between two files still loads as the last complete state.
 
 Reading: a missing or damaged file raises `GalileoError` with one line naming the file. A save
 killed before its rename leaves a `.<file>.<random>.tmp` behind; opening the session removes it.
+
+One app at a time (`SessionLock`): an app holds an exclusive `fcntl.flock` on `<folder>/.lock`
+(which names its pid, host and start time) from the moment it creates or opens the session
+until it closes it; a second opener is refused in one line naming the holder. The operating
+system drops the lock when the holder's process ends, however it ends (a crash, SIGKILL), so a
+lock is never stale; the file itself stays. The lock also notices the folder deleted, moved or
+replaced while the app runs (`SessionLock.lost`: the folder's device and inode as opened):
+saving then stops, and `recover` writes the whole session to a new folder beside it
+(`<name>-recovered-<YYYYmmdd-HHMMSS>/`, built under a temporary name and renamed into place),
+`video.mp4` included: the lock keeps the video open, so it survives the folder's deletion.
 """
 from __future__ import annotations
 
+import fcntl
 import io
+import json
 import logging
 import math
+import os
 import re
+import shutil
+import socket
 import time
+import weakref
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
@@ -51,14 +67,20 @@ EVENTS_FILE = "events.json"
 CHAINS_FILE = "chains.json"
 RECORD_FILE = "record.npz"
 FILES = (SCENE_FILE, TRACKS_FILE, SETTINGS_FILE, EVENTS_FILE, CHAINS_FILE, RECORD_FILE)
+VIDEO_FILE = "video.mp4"   # the app's copy of the video (kept open by the lock, for `recover`)
+LOCK_FILE = ".lock"
 
 
 def new_session_dir(root: str | Path, name: str) -> Path:
     """Make and return `root/<YYYYmmdd-HHMMSS>-<name>/` (with -2, -3, ... if that exists)."""
     root = Path(root)
     safe = re.sub(r"[^A-Za-z0-9._-]+", "-", str(name)).strip("-.") or "session"
-    stem = f"{time.strftime('%Y%m%d-%H%M%S')}-{safe}"
     root.mkdir(parents=True, exist_ok=True)
+    return _new_folder(root, f"{time.strftime('%Y%m%d-%H%M%S')}-{safe}")
+
+
+def _new_folder(root: Path, stem: str) -> Path:
+    """Make and return the empty folder `root/<stem>` (or -2, -3, ...: never one that exists)."""
     for i in range(1, 1000):
         path = root / (stem if i == 1 else f"{stem}-{i}")
         try:
@@ -84,12 +106,170 @@ def write_static(folder: Path, scene_json: dict, tracks_json: dict) -> None:
 
 
 def write_state(folder: Path, *, settings: dict, events: list[dict], chains: dict,
-                record: dict[str, np.ndarray]) -> None:
-    """The changing state, chains.json (the commit point) last."""
-    atomic_write_bytes(folder / RECORD_FILE, npz_bytes(record))
-    write_json(folder / EVENTS_FILE, {"version": SESSION_VERSION, "events": events})
-    write_json(folder / SETTINGS_FILE, {"version": SESSION_VERSION, **settings})
-    write_json(folder / CHAINS_FILE, chains)
+                record: dict[str, np.ndarray], lock: "SessionLock | None" = None) -> None:
+    """The changing state, chains.json (the commit point) last. With the folder's `lock`, each
+    file is written only while the folder is still the session's (`SessionLost` otherwise: a
+    file written into a folder made anew under its name would be half a session)."""
+    writes = ((RECORD_FILE, lambda path: atomic_write_bytes(path, npz_bytes(record), make_parents=False)),
+              (EVENTS_FILE, lambda path: write_json(path, {"version": SESSION_VERSION, "events": events},
+                                                    make_parents=False)),
+              (SETTINGS_FILE, lambda path: write_json(path, {"version": SESSION_VERSION, **settings},
+                                                      make_parents=False)),
+              (CHAINS_FILE, lambda path: write_json(path, chains, make_parents=False)))
+    for name, write in writes:
+        why = lock.lost() if lock is not None else None
+        if why:
+            raise SessionLost(f"the session folder {folder} {why}")
+        write(folder / name)
+
+
+# -- one app at a time -----------------------------------------------------------------------------------
+
+class SessionLost(GalileoError):
+    """The session folder was deleted, moved or replaced while the app had it open."""
+
+
+def _holder(path: Path) -> str:
+    """Who holds a session's lock, as its lock file says."""
+    try:
+        d = json.loads(path.read_text())
+        return f"pid {int(d['pid'])} on {d['host']}, since {d['since']}"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "holder unknown"
+
+
+class SessionLock:
+    """This app's hold on a session folder (see the module docstring): an exclusive flock on
+    `<folder>/.lock`, taken at once or refused (GalileoError naming the holder); and the
+    folder's identity, for `lost`. `release` lets go (so does the process's end). A folder
+    where no lock file can be made (read-only: an archive) opens unlocked, with a warning."""
+
+    def __init__(self, folder: str | Path):
+        folder = Path(folder)
+        if not folder.is_dir():
+            raise GalileoError(f"session folder not found: {folder}")
+        self.folder = folder
+        self.kept: dict[str, Any] = {}    # file name -> open file (see `keep`)
+        self._file = None
+        path = folder / LOCK_FILE
+        try:   # (never truncated before the lock is ours: a refused opener reads the holder there)
+            f = os.fdopen(os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666), "r+b", buffering=0)
+        except OSError as e:
+            log.warning("cannot lock session folder %s (%s): another app could open it too", folder,
+                        e.strerror or e)
+        else:
+            try:
+                fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as e:
+                f.close()
+                if isinstance(e, BlockingIOError):
+                    raise GalileoError(f"session {folder} is open in another app ({_holder(path)}): close it "
+                                       "there first, or open a copy of the folder") from None
+                log.warning("cannot lock session folder %s (%s): another app could open it too", folder,
+                            e.strerror or e)   # a file system without locks
+            else:
+                holder = {"pid": os.getpid(), "host": socket.gethostname(), "since": time.strftime("%Y-%m-%d %H:%M:%S")}
+                os.ftruncate(f.fileno(), 0)
+                os.pwrite(f.fileno(), (json.dumps(holder) + "\n").encode(), 0)
+                self._file = f
+                _held.add(self)
+        st = os.stat(folder)
+        self._identity = (st.st_dev, st.st_ino)
+
+    def keep(self, name: str) -> None:
+        """Keep `<folder>/<name>` open (if there) so that `recover` can copy it even after the
+        folder is deleted."""
+        if name not in self.kept and (self.folder / name).is_file():
+            self.kept[name] = open(self.folder / name, "rb")
+
+    def lost(self) -> str | None:
+        """Why the folder is no longer this session's ("was deleted", "was moved or renamed
+        (now at ...)", ...); None while it is."""
+        try:
+            st = os.stat(self.folder)
+            if (st.st_dev, st.st_ino) == self._identity:
+                return None
+            taken = True      # another folder has its name now
+        except FileNotFoundError:
+            taken = False
+        except OSError as e:
+            return f"cannot be read ({e.strerror or e})"
+        if self._file is None:
+            what = "was deleted or moved"
+        elif os.fstat(self._file.fileno()).st_nlink == 0:
+            what = "was deleted"
+        else:
+            now = _path_of(self._file)
+            what = "was moved or renamed" + (f" (now {now.parent})" if now and now.name == LOCK_FILE else "")
+        return what + (" and another folder took its name" if taken else "")
+
+    def release(self) -> None:
+        for f in self.kept.values():
+            f.close()
+        self.kept = {}
+        if self._file is not None:
+            self._file.close()    # (closing the lock file lets the lock go)
+            self._file = None
+        _held.discard(self)
+
+
+def _path_of(f) -> Path | None:
+    """Where an open file is now (Linux: /proc/self/fd; None elsewhere or once it is deleted)."""
+    try:
+        return Path(os.readlink(f"/proc/self/fd/{f.fileno()}"))
+    except OSError:
+        return None
+
+
+_held: "weakref.WeakSet[SessionLock]" = weakref.WeakSet()   # this process's locks
+
+
+def _close_in_child() -> None:
+    """A forked child (a chain worker) closes its copies of the lock files: a flock belongs to
+    the open file, so a child that kept its copy would hold the session after the app ended."""
+    for lock in list(_held):
+        if lock._file is not None:
+            lock._file.close()    # (the child's copy only: the parent's lock stays)
+            lock._file = None
+    _held.clear()
+
+
+os.register_at_fork(after_in_child=_close_in_child)
+
+
+def recover(lost: SessionLock, *, scene_json: dict, tracks_json: dict, **state) -> SessionLock:
+    """Write the whole session (`write_static`, the kept files (the video), `write_state`'s
+    `state`) to a new folder beside the lost one, `<name>-recovered-<YYYYmmdd-HHMMSS>/`,
+    atomically: built in a temporary folder, locked, then renamed onto a freshly made empty
+    folder of that name. Returns the new folder's lock (OSError or GalileoError if it cannot)."""
+    parent, stem = lost.folder.parent, f"{lost.folder.name}-recovered-{time.strftime('%Y%m%d-%H%M%S')}"
+    tmp = _new_folder(parent, f".{stem}.tmp")
+    lock = None
+    try:
+        lock = SessionLock(tmp)
+        write_static(tmp, scene_json, tracks_json)
+        for name, f in lost.kept.items():
+            f.seek(0)
+            with open(tmp / name, "wb") as out:
+                shutil.copyfileobj(f, out)
+                out.flush()
+                os.fsync(out.fileno())
+        write_state(tmp, **state)
+        final = _new_folder(parent, stem)
+        try:
+            os.rename(tmp, final)    # onto the empty folder just made: atomic, and never over another's
+        except OSError:
+            final.rmdir()
+            raise
+    except BaseException:
+        if lock is not None:
+            lock.release()
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    lock.folder = final
+    for name in lost.kept:
+        lock.keep(name)
+    return lock
 
 
 # -- proposal widths and joint moves as plain JSON -------------------------------------------------

@@ -40,7 +40,7 @@ from galileo.camera import Camera
 from galileo.datatypes import Tracks, Trajectory
 from galileo.errors import GalileoError
 from galileo.latents import as_number, check_bounds, check_noise, check_widths
-from galileo.results import burn_in
+from galileo.results import MIN_KEPT_DRAWS, burn_in
 
 log = logging.getLogger(__name__)
 
@@ -52,12 +52,15 @@ ESS_COLOR = "#e8590c"           # R-hat holds, too few effective draws
 FIRST_VIEW_FOV_DEG = 50.0    # the first view: this wide, the scene filling FIRST_VIEW_FILL of it
 FIRST_VIEW_FILL = 0.7
 FIRST_VIEW_ASPECT = 4 / 3    # the narrowest window the first view plans for
+FRUSTUM_SCALE = 0.2          # the video camera's frustum: this much of the scene's radius deep
+FRUSTUM_LINE_PX = 2.0        # its lines, in screen pixels (world-thick lines filled a close view)
 # the log-likelihood traces: each chain's log-likelihood minus the best so far, on an asinh
 # scale linear within this many nats of the best (converged chains' spread) and logarithmic
 # beyond it (a chain stuck 1,000 nats below does not flatten the others into one line)
 TRACE_ASINH_NATS = 10.0
 TRACE_TITLE = "log-likelihood minus the best so far (nats; asinh scale)"
 Y_AXIS_CHAR_PX, Y_AXIS_PAD_PX = 9, 30   # uPlot's 12 px axis font: digits and "-" about 7 px, ticks 10 px
+HIST_BINS = 30               # a posterior histogram's bins (over the kept draws' range)
 BACKGROUND_MAX_PX = 1920     # the letterboxed camera-view background, at most this wide
 CHAIN_COLORS = ["#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#bfef45",
                 "#469990", "#9a6324", "#800000", "#808000", "#000075", "#a9a9a9", "#e6beff", "#fabebe"]
@@ -89,6 +92,23 @@ def fit_distance(pts: np.ndarray, centre: np.ndarray, direction: np.ndarray, fov
     return float(hi)
 
 
+def in_front_of(eye: np.ndarray, look_at: np.ndarray, point: np.ndarray, pts: np.ndarray, fov: float,
+                aspect: float) -> bool:
+    """Whether `point` lies inside the view from `eye` towards `look_at` (vertical `fov`, at
+    `aspect`) and nearer the eye than every one of `pts`: in the way of what the view frames."""
+    fwd = (look_at - eye) / np.linalg.norm(look_at - eye)
+    right = np.cross(fwd, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right) or 1.0
+    down = np.cross(fwd, right)
+    rel = point - eye
+    z = float(rel @ fwd)
+    if z <= 0:
+        return False
+    t = np.tan(fov / 2)
+    inside = abs(rel @ right) / z <= t * aspect and abs(rel @ down) / z <= t
+    return bool(inside and z < float(((pts - eye) @ fwd).min()))
+
+
 def edit_sweep(event: dict) -> int:
     """The sweep an edit is marked at: the last sweep the most advanced chain ran before it
     (the chains' own count, which a session's rounds outrun when only some chains run)."""
@@ -106,11 +126,12 @@ def _wxyz_from_xyzw(q) -> np.ndarray:
     return np.array([q[3], q[0], q[1], q[2]])
 
 
-def init_markdown(info: dict, names) -> str:
-    """How the chains started, for the Chains panel: the prior, or what the recognition model
+def init_markdown(info: dict, names, starts_doc: str = "drawn from the prior") -> str:
+    """How the chains started, for the Chains panel: as the scenario starts them
+    (`Scenario.starts_doc`: the prior, or the splash's seed start), or what the recognition model
     read (per object: mass and friction with 90% intervals)."""
     if info.get("starts") != "recognition":
-        return "Chains started from the prior."
+        return f"Chains started {starts_doc}."
     parts = [f"Chains started from the recognition model ({info.get('kind') or 'lenet'}, "
              f"{info.get('labels') or '?'} labels):"]
     for role, r in (info.get("readings") or {}).items():
@@ -138,12 +159,16 @@ def recognition_curves(info: dict, names) -> dict:
     return out
 
 
-def convergence_html(conv: dict, derived: dict, fmt=lambda name, v: f"{v:.3g}") -> str:
-    """The Chains panel's verdict: an overall line, then per latent one coloured line (green:
+def convergence_html(conv: dict, derived: dict, fmt=lambda name, v: f"{v:.3g}", warming: str | None = None) -> str:
+    """The Chains panel's verdict: an overall line ("Converged: all n latents", or "Not
+    converged: k of n latents converged so far"), then per latent one coloured line (green:
     converged; red: R-hat above the target or not computable; orange: R-hat holds, ESS too
     low) with R-hat, ESS (the lower of bulk and tail) and "converged" or "not converged: why";
     then the posterior median and 90% interval of each derived quantity (as
-    `InferenceResult.derived_posterior` gives them; a log_<x> beside its <x> is left out)."""
+    `InferenceResult.derived_posterior` gives them; a log_<x> beside its <x> is left out).
+    `warming` (e.g. "sweep 12 of 37"): the chains are still in warm-up, so there is no verdict
+    yet, and each latent says so. A derived quantity marked fixed (the same in every draw: the
+    scene's) is shown as fixed, never as a posterior."""
     e = html.escape
     per = conv.get("per_latent") or {}
     why = {}
@@ -152,18 +177,23 @@ def convergence_html(conv: dict, derived: dict, fmt=lambda name, v: f"{v:.3g}") 
         why[name] = reason
     n_ok = sum(1 for ok in per.values() if ok)
     criteria = f"R-hat &le; {conv.get('rhat_target', 1.01):g}, ESS &ge; {conv.get('min_ess', 400):g}"
-    if conv.get("converged"):
+    if warming:
+        head = (f'<div class="galileo-verdict" style="font-weight:600;color:{ESS_COLOR}">'
+                f"Warming up ({e(warming)}): no verdict before the kept draws ({criteria})</div>")
+    elif conv.get("converged"):
         head = (f'<div class="galileo-verdict" style="font-weight:600;color:{CONVERGED_COLOR}">'
                 f"Converged: all {len(per)} latents ({criteria})</div>")
     else:
         head = (f'<div class="galileo-verdict" style="font-weight:600;color:{RHAT_COLOR}">'
-                f"Not converged: {n_ok} of {len(per)} latents ({criteria})</div>")
+                f"Not converged: {n_ok} of {len(per)} latents converged so far ({criteria})</div>")
     rows = []
     for name, ok in per.items():
         r = (conv.get("r_hat") or {}).get(name)
         ess = [x for x in ((conv.get("ess_bulk") or {}).get(name), (conv.get("ess_tail") or {}).get(name))
                if x is not None]
-        if ok:
+        if warming:
+            color, state = ESS_COLOR, "warming up"
+        elif ok:
             color, state = CONVERGED_COLOR, "converged"
         else:
             color = ESS_COLOR if (r is not None and r <= conv.get("rhat_target", 1.01)) else RHAT_COLOR
@@ -171,12 +201,15 @@ def convergence_html(conv: dict, derived: dict, fmt=lambda name, v: f"{v:.3g}") 
         rows.append(f'<div class="galileo-latent" data-latent="{e(name)}" data-converged="{str(bool(ok)).lower()}" '
                     f'style="color:{color}"><b>{e(name)}</b> R-hat {"-" if r is None else f"{r:.3f}"}, '
                     f'ESS {"-" if not ess else f"{min(ess):.0f}"}: {e(state)}</div>')
-    shown = [k for k in derived if not (k.startswith("log_") and k[4:] in derived)]
+    fixed = {k: fmt(k, v["q50"]) for k, v in derived.items() if v.get("fixed")}
+    shown = [k for k in derived if not (k.startswith("log_") and k[4:] in derived) and k not in fixed]
     der = [f'<div class="galileo-derived"><b>{e(k)}</b>: median {fmt(k, derived[k]["q50"])} '
            f'(90% {fmt(k, derived[k]["q05"])} &ndash; {fmt(k, derived[k]["q95"])})</div>' for k in shown]
     if der:
         der.insert(0, '<div style="margin-top:4px">Posterior (kept draws):</div>')
-    return f'<div class="galileo-convergence" style="font-size:13px;line-height:1.45;padding:0 0.75em 0.5em 0.75em">{head}{"".join(rows)}{"".join(der)}</div>'
+    fix = [f'<div class="galileo-fixed"><b>{e(k)}</b>: {e(v)} (fixed by the scene, not inferred)</div>'
+           for k, v in fixed.items()]
+    return f'<div class="galileo-convergence" style="font-size:13px;line-height:1.45;padding:0 0.75em 0.5em 0.75em">{head}{"".join(rows)}{"".join(der)}{"".join(fix)}</div>'
 
 
 def camera_pose(cam: Camera) -> tuple[np.ndarray, np.ndarray, float, float]:
@@ -256,6 +289,107 @@ def letterbox(image: np.ndarray, cam: Camera, aspect: float, max_px: int = BACKG
     return canvas, float(2 * np.arctan(th))
 
 
+def _assign(plot, spec: dict, sent: dict) -> None:
+    """Set a uPlot handle's props from `spec`, only those that changed since last sent (viser
+    sends every assignment of a dict or tuple prop; a new `scales` also rebuilds the chart)."""
+    for key in ("series", "axes", "legend", "scales", "title", "data"):
+        if key not in spec:
+            continue
+        value = spec[key]
+        token = repr(value) if key != "data" else [np.asarray(d).tobytes() for d in value]
+        if sent.get(key) != token:
+            setattr(plot, key, value)
+            sent[key] = token
+
+
+def _axis_px(labels) -> int:
+    """A y axis wide enough for its widest tick label (uPlot's 12 px font)."""
+    return Y_AXIS_CHAR_PX * max((len(t) for t in labels), default=1) + Y_AXIS_PAD_PX
+
+
+def _unit(unit: str) -> str:
+    """A unit for an axis or a label: nothing for a dimensionless quantity (not "(1)")."""
+    return "" if unit in ("", "1") else f" ({unit})"
+
+
+def trace_plot_spec(traces: list[np.ndarray], labels: list[str], colors: list[str], edits: list[int]) -> dict:
+    """The log-likelihood traces' uPlot props: each chain's log-likelihood less the best so far
+    (<= 0; TRACE_TITLE) per sweep, a shorter (paused, removed) chain held at its last value
+    (uPlot draws nothing if a series holds NaN), edits as spikes at the sweep they took effect,
+    and both scales' ranges set here: left to itself, viser's client let the x range drift to
+    [0, 1] as data came in (the traces one column of dots at x = 1), and uPlot's asinh
+    auto-range cut the y axis at -10, hiding every chain within 10 nats of the best."""
+    length = max(len(t) for t in traces)
+    x = np.arange(1, length + 1, dtype=float)
+    best = max(float(np.max(t)) for t in traces if len(t))
+    ys = [np.concatenate([t, np.full(length - len(t), t[-1] if len(t) else best)]) - best for t in traces]
+    series = [uplot.Series(label="sweep")] + [uplot.Series(label=lab, stroke=col, width=1)
+                                              for lab, col in zip(labels, colors)]
+    data = [x, *ys]
+    lowest = min(float(y.min()) for y in ys)
+    marks_at = sorted({sw for sw in edits if 1 <= sw <= length})
+    if marks_at:
+        stack = np.stack(ys)
+        marks = np.full(length, lowest)
+        for sw in marks_at:
+            marks[sw - 1] = float(stack[:, sw - 1].max())
+        series.append(uplot.Series(label="edit", stroke="#000", width=1))
+        data.append(marks)
+    # y: from a little below the lowest trace (asinh: a tenth further, at least a nat) to a little
+    # above 0; ticks at 0, -10, -100, ... (uPlot's own asinh ticks crowded out their labels)
+    y_lo = lowest - max(1.0, 0.1 * abs(lowest))
+    splits = [0.0] + [-(10.0 ** k) for k in range(1, 12) if -(10.0 ** k) >= y_lo]
+    title = TRACE_TITLE + (f"; edits at sweep{'s' if len(marks_at) > 1 else ''} "
+                           f"{', '.join(str(e) for e in marks_at)}" if marks_at else "")
+    return {"series": tuple(series), "data": tuple(data), "title": title,
+            "legend": uplot.Legend(show=len(labels) <= len(CHAIN_COLORS)),   # the splash's 50: taller than the plot
+            "scales": {"x": uplot.Scale(time=False, range=(1.0, float(max(length, 2)))),
+                       "y": uplot.Scale(distr=4, asinh=TRACE_ASINH_NATS, range=(float(y_lo), 3.0))},
+            "axes": (uplot.Axis(label="sweep"),
+                     uplot.Axis(size=_axis_px([f"{v:,.0f}" for v in splits]), splits=tuple(splits),
+                                values=tuple(f"{v:,.0f}" for v in splits)))}
+
+
+def histogram_spec(kept: np.ndarray, starts: np.ndarray, bounds, latent, *, integer: bool = False,
+                   recognized=None) -> dict:
+    """A latent's posterior histogram's uPlot props: HIST_BINS bins over where the kept draws are
+    (their range widened by a tenth each side, inside the prior), so a posterior far narrower
+    than its prior is a histogram, not one spike; over the whole prior before there are kept
+    draws (warm-up). The chains' starts inside that range (counted x 10, so 16 chains show
+    beside thousands of draws); the recognition model's density, scaled to the histogram's peak.
+    An integer latent gets a bin per integer. Axes titled, with the latent's unit."""
+    lo, hi = (float(b) for b in bounds)
+    kept = kept[np.isfinite(kept) & (kept >= lo) & (kept <= hi)]    # (draws before a prior edit may lie outside)
+    if len(kept):
+        a, b = float(kept.min()), float(kept.max())
+        pad = 0.1 * (b - a) if b > a else max(abs(a) * 0.01, (hi - lo) * 1e-3)
+        lo, hi = max(lo, a - pad), min(hi, b + pad)
+    if integer:   # one bin per integer, at the integer
+        ks = np.arange(np.ceil(lo), np.floor(hi) + 1)
+        edges = np.append(ks - 0.5, ks[-1] + 0.5) if len(ks) else np.array([lo, hi])
+        x = ks.astype(float) if len(ks) else np.array([lo])
+    else:
+        edges = np.linspace(lo, hi, HIST_BINS + 1)
+        x = ((edges[:-1] + edges[1:]) / 2).astype(float)
+    counts = np.histogram(kept, bins=edges)[0].astype(float)
+    started = 10.0 * np.histogram(starts[(starts >= edges[0]) & (starts <= edges[-1])], bins=edges)[0].astype(float)
+    series = [uplot.Series(label=f"{latent.name}{_unit(latent.unit)}"),
+              uplot.Series(label="kept draws", stroke="#444", fill="#4363d855"),
+              uplot.Series(label="chain starts (x 10)", stroke="#e6194b", width=2)]
+    data = [x, counts, started]
+    if recognized is not None:   # the recognition model's density, its peak at the posterior's
+        dens = recognized(x)
+        data.append(dens / max(float(dens.max()), 1e-300) * max(float(counts.max()), 1.0))
+        series.append(uplot.Series(label="recognition (scaled)", stroke="#f58231", width=2))
+    top = max(float(np.max(d)) for d in data[1:])
+    span = (float(x[0]) - 0.5, float(x[-1]) + 0.5) if integer else (float(edges[0]), float(edges[-1]))
+    return {"series": tuple(series), "data": tuple(data),
+            "title": f"posterior {latent.name}" + ("" if len(kept) else " (no kept draws in the prior yet)"),
+            "scales": {"x": uplot.Scale(time=False, range=span)},
+            "axes": (uplot.Axis(label=f"{latent.name}{_unit(latent.unit)}"),
+                     uplot.Axis(label="draws", size=_axis_px([f"{top:,.0f}"]) + 14))}
+
+
 @dataclass
 class Selection:
     chain: int
@@ -290,8 +424,10 @@ class Viewer:
         self._integer = {j for j, lat in enumerate(controller.latents) if lat.integer}
         self._decimals = {n: 0 if j in self._integer else max(3, int(np.ceil(-np.log10(narrow[j]))))
                           for j, n in enumerate(controller.names)}
-        self._y_axis_px = 0
-        self._legend = True
+        self._sent: dict[str, dict] = {}   # per plot, the props last sent (see _assign)
+        self._set_inputs_chain: int | None = None   # the chain "Set chain's latents" was filled from
+        self._excluded: list[int] = []    # chains the last prior edit left outside (Restart them inside)
+        self._frustum_scale_m = 0.15     # (the first view sets it from the scene's size)
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         if port and self.server.get_port() != port:
             # viser moves on to the next free port without a word: a user's bookmark, firewall rule
@@ -301,6 +437,9 @@ class Viewer:
 
             raise GalileoError(f"port {port} on {host} is taken (another app running?); choose another with --port")
         self.url = f"http://{host}:{self.server.get_port()}"
+        # the panel docked beside the 3-D view, not floating over it (it covered the target and the
+        # collision at 1280 x 720, and the camera view's right side)
+        self.server.gui.main_panel.dock_right()
         self._build_scene()
         self._build_gui()
         self.select_sample(*self._first_selection())
@@ -352,6 +491,7 @@ class Viewer:
         radius = float(np.linalg.norm(hi - lo)) / 2
         if not radius > 0:
             return
+        self._frustum_scale_m = FRUSTUM_SCALE * radius
         back = (np.array([0.5, -0.87, 0.0]) if self.camera is None else camera_pose(self.camera)[1] - centre)
         back[2] = 0.0
         back = back / (np.linalg.norm(back) or 1.0)
@@ -361,6 +501,13 @@ class Viewer:
         direction /= np.linalg.norm(direction)
         fov = np.deg2rad(FIRST_VIEW_FOV_DEG)
         dist = fit_distance(pts, centre, direction, fov, FIRST_VIEW_ASPECT, FIRST_VIEW_FILL)
+        if self.camera is not None:
+            # the video camera's frustum must not stand between the view and the scene (the
+            # splash's camera is close to its tank): if it would, frame it with the scene
+            eye, cam_pos = centre + dist * direction, camera_pose(self.camera)[1]
+            if in_front_of(eye, centre, cam_pos, pts, fov, FIRST_VIEW_ASPECT):
+                pts = np.vstack([pts, cam_pos + self._frustum_scale_m * (cam_pos - eye) / np.linalg.norm(cam_pos - eye)])
+                dist = fit_distance(pts, centre, direction, fov, FIRST_VIEW_ASPECT, FIRST_VIEW_FILL)
         self.server.initial_camera.fov = fov
         self.server.initial_camera.look_at = centre
         self.server.initial_camera.position = centre + dist * direction
@@ -377,7 +524,8 @@ class Viewer:
         wxyz, pos, fov, aspect = camera_pose(self.camera)
         with self._lock:
             self._frustums[client.client_id] = client.scene.add_camera_frustum(
-                "/video_camera", fov=fov, aspect=aspect, scale=0.15, image=self.video[self.frame], format="jpeg",
+                "/video_camera", fov=fov, aspect=aspect, scale=self._frustum_scale_m, thickness=FRUSTUM_LINE_PX,
+                thickness_units="screen", image=self.video[self.frame], format="jpeg",
                 jpeg_quality=80, wxyz=wxyz, position=pos)
 
     def _on_camera_update(self, client) -> None:
@@ -422,28 +570,23 @@ class Viewer:
             self.progress = g.add_progress_bar(0.0, animated=True)
             self.status_text = g.add_markdown("")
             self.convergence_box = g.add_html("")
+            # (its series, scales and axes come with the first traces: trace_plot_spec)
             self.trace_plot = g.add_uplot((np.zeros(1), np.zeros(1)), (uplot.Series(label="sweep"),
                                                                        uplot.Series(label="chain 0")),
-                                          title=TRACE_TITLE, aspect=1.6,
-                                          scales={"x": uplot.Scale(time=False),
-                                                  "y": uplot.Scale(distr=4, asinh=TRACE_ASINH_NATS)})
-            self.init_text = g.add_markdown(init_markdown(ctrl.init_info, ctrl.names))
+                                          title=TRACE_TITLE, aspect=1.4)
+            self.init_text = g.add_markdown(init_markdown(ctrl.init_info, ctrl.names, ctrl.scenario.starts_doc))
             self._recognized = recognition_curves(ctrl.init_info, ctrl.names)
             self.hist_plots = {}
             for n in ctrl.names:
-                series = [uplot.Series(label=n), uplot.Series(label="count", stroke="#444", fill="#4363d855"),
-                          uplot.Series(label="chain starts (x 10)", stroke="#e6194b", width=2)]
-                if n in self._recognized:
-                    series.append(uplot.Series(label="recognition (scaled)", stroke="#f58231", width=2))
-                zeros = (np.zeros(1),) * len(series)
-                self.hist_plots[n] = g.add_uplot(zeros, tuple(series), title=f"posterior {n}", aspect=2.5,
-                                                 scales={"x": uplot.Scale(time=False)})
+                series = [uplot.Series(label=n), uplot.Series(label="kept draws")]
+                self.hist_plots[n] = g.add_uplot((np.zeros(1),) * len(series), tuple(series),
+                                                 title=f"posterior {n}", aspect=2.2)
         specs = self._specs = {lat.name: lat for lat in ctrl.latents}
         # Every number is a text field, read by the server exactly as typed (a browser's number
         # input rewrites what it cannot parse: "1e308" became 1308, -1 became the minimum)
         with g.add_folder("Priors and settings", expand_by_default=False):
             self.settings_in_force = g.add_markdown("")
-            self.bound_inputs = {n: g.add_text(f"{n} bounds ({specs[n].unit})", "",
+            self.bound_inputs = {n: g.add_text(f"{n} bounds{_unit(specs[n].unit)}", "",
                                                hint=f"uniform prior: low, high in {specs[n].unit}: {specs[n].doc}")
                                  for n in ctrl.names}
             noise = ctrl.scenario.noise
@@ -461,6 +604,8 @@ class Viewer:
             self.every_input = g.add_text("broad every", "", hint="every this many sweeps a broad one (0: never)")
             self.apply_button = g.add_button("Apply")
             self.settings_message = g.add_html("")
+            self.restart_inside = g.add_button("Restart those chains inside the new prior", color="orange",
+                                               visible=False)
             self._show_settings_in_force()
         with g.add_folder("Steering", expand_by_default=False):
             self.steer_message = g.add_html("")
@@ -476,7 +621,7 @@ class Viewer:
             self.reset_map = g.add_button("Reset chain to MAP")
             self.reset_sel = g.add_button("Reset chain to selected sample")
             start = self._start_values()
-            self.set_inputs = {n: g.add_text(f"{n} ({specs[n].unit})", _num(start[n]),
+            self.set_inputs = {n: g.add_text(f"{n}{_unit(specs[n].unit)}", f"{start[n]:.6g}",
                                              hint=f"{specs[n].unit}: {specs[n].doc}") for n in ctrl.names}
             self.set_button = g.add_button("Set chain's latents")
             until = ctrl.status().get("until") or {}
@@ -554,6 +699,7 @@ class Viewer:
             return msg
         st = ctrl.settings
         changed = []
+        outside = self._outside(new["bounds"])    # chains the new prior leaves out (set_bounds moves them in)
         for n, (lo, hi) in new["bounds"].items():
             if (lo, hi) != tuple(st.bounds[n]):
                 ctrl.set_bounds(n, lo, hi)
@@ -572,9 +718,56 @@ class Viewer:
             ctrl.set_widths(n, b, e)
             changed.append("proposal widths")
         msg = ("Applied: " + ", ".join(changed)) if changed else "Nothing changed"
-        self.settings_message.content = _message(msg, ok=True)
+        self._excluded = sorted(outside)
+        if outside:
+            ids = ctrl.chain_ids()
+            where = "; ".join(f"{n} {self._fmt(n, x)} outside [{_num(new['bounds'][n][0])}, {_num(new['bounds'][n][1])}]"
+                              for n, x in next(iter(outside.values())).items())
+            msg += (f". {len(outside)} of {len(ids)} chains stood outside the new prior (e.g. {where}) and were moved "
+                    "to its nearest edge: if the video favours values outside it, their log-likelihood falls far. "
+                    "Restart them inside the new prior (fresh starts drawn from it) with the button below.")
+        self.settings_message.content = _message(msg, ok=not outside)
+        self.restart_inside.visible = bool(outside)
         self._show_settings_in_force()
         return msg
+
+    def _outside(self, bounds: dict) -> dict[int, dict[str, float]]:
+        """Per active chain whose position lies outside `bounds`: {latent: value} of the latents
+        outside."""
+        out = {}
+        for c in self.ctrl.chain_ids():
+            try:
+                pos = self.ctrl.position(c)
+            except ValueError:   # created after the round in flight
+                continue
+            bad = {n: x for n, x in pos.items() if not bounds[n][0] <= x <= bounds[n][1]}
+            if bad:
+                out[c] = bad
+        return out
+
+    def restart_inside_prior(self) -> str:
+        """The chains the last prior edit left out start afresh: each latent drawn uniformly from
+        the prior in force (integers on their grid), seeded by the chain and its sweep so a
+        session replays it (each is a set_chain event)."""
+        ctrl, bounds = self.ctrl, self.ctrl.settings.bounds
+        done = []
+        for c in self._excluded:
+            if c not in ctrl.chain_ids():
+                continue
+            rng = np.random.default_rng([c, len(ctrl.samples(c)), 24])
+            values = {}
+            for j, n in enumerate(ctrl.names):
+                lo, hi = bounds[n]
+                x = float(rng.uniform(lo, hi))
+                values[n] = float(min(max(round(x), np.ceil(lo)), np.floor(hi))) if j in self._integer else x
+            ctrl.set_chain(c, values)
+            done.append(c)
+        self._excluded = []
+        self.restart_inside.visible = False
+        self.settings_message.content = _message(
+            f"restarted {len(done)} chain{'s' * (len(done) != 1)} inside the new prior" if done else "no chain to restart",
+            ok=True)
+        return self.settings_message.content
 
     def _chain(self) -> int:
         return int(self.chain_dropdown.value)
@@ -590,6 +783,7 @@ class Viewer:
         self.map_button.on_click(lambda _: self._follow_and_jump())
         self.follow_map.on_update(lambda _: self._follow_and_jump() if self.follow_map.value else None)
         self.apply_button.on_click(lambda _: self.apply_settings())
+        self.restart_inside.on_click(lambda _: self.restart_inside_prior())
 
         def steer(fn):
             """A steering call from a button: what it did, or why it could not (e.g. a value
@@ -760,10 +954,23 @@ class Viewer:
             start = self.ctrl.starts().get(chain)
             started = ("" if start is None else "; started at " + ", ".join(
                 f"{k} = {self._fmt(k, v)}" for k, v in zip(self.ctrl.names, start)))
-            self.sample_text.content = (f"chain {chain}, sample {index}: " + ", ".join(
+            removed = "" if chain in self.ctrl.chain_ids() else " (a removed chain: not in the Chain list)"
+            if chain != self._set_inputs_chain and chain in self.ctrl.chain_ids():
+                self._prefill_set_inputs(chain)
+            self.sample_text.content = (f"chain {chain}{removed}, sample {index}: " + ", ".join(
                 f"{k} = {self._fmt(k, v)}" for k, v in (values or {}).items()) + f"; log-lik {ll:.1f}{under}" + started)
             self.last_resim_s = time.perf_counter() - t0
         return self.last_resim_s
+
+    def _prefill_set_inputs(self, chain: int) -> None:
+        """"Set chain's latents" starts from where the selected chain stands now."""
+        self._set_inputs_chain = chain
+        try:
+            position = self.ctrl.position(chain)
+        except ValueError:   # created after the round in flight
+            return
+        for n, h in getattr(self, "set_inputs", {}).items():
+            h.value = f"{position[n]:.6g}"
 
     def add_selection_listener(self, fn) -> None:
         """Call fn(trajectory, chain, index) whenever the selected sample is simulated (index None:
@@ -771,15 +978,16 @@ class Viewer:
         self._selection_listeners.append(fn)
 
     def jump_to_map(self) -> None:
-        m = self.ctrl.map()
-        if m is None:
-            return
-        chain, index = m[0], m[1]
-        if str(chain) in self.chain_dropdown.options:
-            self.chain_dropdown.value = str(chain)
-        self.sample_slider.max = max(len(self.ctrl.samples(chain)) - 1, 1)
-        self.sample_slider.value = index
-        self.select_sample(chain, index)
+        with self._lock:      # the dropdown, the slider and the sample text agree
+            m = self.ctrl.map()
+            if m is None:
+                return
+            chain, index = m[0], m[1]
+            if str(chain) in self.chain_dropdown.options:
+                self.chain_dropdown.value = str(chain)
+            self.sample_slider.max = max(len(self.ctrl.samples(chain)) - 1, 1)
+            self.sample_slider.value = index
+            self.select_sample(chain, index)
 
     def _on_chain_changed(self, ev=None) -> None:
         if ev is not None and ev.client is not None:    # the user picked a chain: stop following the MAP
@@ -945,9 +1153,16 @@ class Viewer:
         elif reached and running == 0:
             state = ("not converged, the budget is spent" if until and target >= until["max_sweeps"]
                      else "sweep target reached, NOT converged: Resume or Run until converged to go on")
+        elif until and running == 0:
+            state = (f"paused, to run until converged (R-hat <= {until['until_rhat']:g}, ESS >= {until['min_ess']:g}; "
+                     f"budget {until['max_sweeps']}): Resume all to go on")
         elif until:
             state = (f"running until converged (R-hat <= {until['until_rhat']:g}, ESS >= {until['min_ess']:g}; "
                      f"this block to sweep {target}, budget {until['max_sweeps']})")
+        elif running == 0:   # e.g. one chain resumed past the others' target, then held
+            behind = sum(1 for c in st["chains"].values() if c["sweeps"] < target)
+            state = (f"paused; {behind} of {len(ids)} chains below the sweep target {target}: "
+                     "Resume all (or Resume chain) runs them on to it")
         else:
             state = f"not converged yet (sweep target {target})"
         moves_txt = f"moves: {mv.get('set', '?')}"
@@ -958,13 +1173,19 @@ class Viewer:
             moves_txt += f"; joint moves' acceptance: {macc}"
         # a worker that died (the pool restarted, or every chain paused), a thread stopped on an error
         death = (st.get("workers") or {}).get("last_death")
-        alert = "".join(f"**{t}**  \n" for t in (death and death["text"], st.get("error") and
+        alert = "".join(f"**{t}**  \n" for t in ((st.get("session") or {}).get("note"), death and death["text"],
+                                                  st.get("error") and
                                                   f"inference stopped: {st['error']} (Resume all to retry)") if t)
         self.status_text.content = (f"{alert}{running} running / {len(ids)} chains, {st.get('sweeps', 0)} sweeps: {state}  \n"
                                     f"{moves_txt}  \nacceptance: {acc or '-'}  \n"
                                     f"convergence ({conv.get('kept_draws', 0)} kept draws): {conv['summary']}  \n"
                                     f"{map_txt}")
-        box = convergence_html(conv, st.get("derived") or {})
+        longest = max((c["sweeps"] for c in st["chains"].values()), default=0)
+        warm = mv.get("warmup") or 0
+        warming = (f"sweep {longest} of {warm}" if longest <= warm else
+                   f"sweep {longest}: too few kept draws yet" if conv.get("kept_draws", 0) < 2 * MIN_KEPT_DRAWS
+                   else None)
+        box = convergence_html(conv, st.get("derived") or {}, warming=warming)
         if self.convergence_box.content != box:
             self.convergence_box.content = box
         self._update_plots(ids)
@@ -972,64 +1193,20 @@ class Viewer:
     def _update_plots(self, ids: list[int]) -> None:
         ctrl = self.ctrl
         traces = [ctrl.logliks(c) for c in ids]
-        length = max((len(t) for t in traces), default=0)
-        if length == 0:
+        if max((len(t) for t in traces), default=0) == 0:
             return
-        x = np.arange(1, length + 1, dtype=float)
-        # each trace less the best log-likelihood so far (<= 0; see TRACE_TITLE); uPlot draws
-        # nothing if a series holds NaN: a shorter (paused, removed) chain's trace is held at its
-        # last value
-        best = max((float(np.max(t)) for t in traces if len(t)), default=0.0)
-        ys = [np.concatenate([t, np.full(length - len(t), t[-1] if len(t) else best)]) - best for t in traces]
-        series = [uplot.Series(label="sweep")] + [
-            uplot.Series(label=f"chain {c}", stroke=CHAIN_COLORS[c % len(CHAIN_COLORS)], width=1) for c in ids]
-        data = [x, *ys]
-        # edits (priors, sigma, widths, steering) as spikes from the bottom at the sweep they took effect
-        # (pausing and resuming change no chain's target or state: not edits; the app pauses every
-        # chain at its target sweeps, which would otherwise mark a spike there)
-        edits = sorted({sw for sw in (edit_sweep(e) for e in ctrl.events if e["kind"] not in NOT_EDITS)
-                        if 1 <= sw <= length})
-        if edits:
-            stack = np.stack(ys)
-            marks = np.full(length, float(stack.min()))
-            for sw in edits:
-                marks[sw - 1] = float(stack[:, sw - 1].max())
-            series.append(uplot.Series(label="edit", stroke="#000", width=1))
-            data.append(marks)
-        # the y axis wide enough for its labels, minus sign included (a splash chain starts 1e6 below)
-        width = Y_AXIS_CHAR_PX * len(f"{-abs(float(np.min(ys))):,.0f}") + Y_AXIS_PAD_PX
-        if width != self._y_axis_px:
-            self._y_axis_px = width
-            self.trace_plot.axes = (uplot.Axis(), uplot.Axis(size=width))
-        legend = len(ids) <= len(CHAIN_COLORS)   # more chains (the splash's 50) than colours: a legend taller than the plot
-        if legend != self._legend:
-            self._legend = legend
-            self.trace_plot.legend = uplot.Legend(show=legend)
-        self.trace_plot.series = tuple(series)
-        self.trace_plot.data = tuple(data)
-        self.trace_plot.title = "log-likelihood per chain" + (f" (edits at sweeps {edits})" if edits else "")
+        edits = [edit_sweep(e) for e in ctrl.events if e["kind"] not in NOT_EDITS]
+        spec = trace_plot_spec(traces, [f"chain {c}" for c in ids],
+                               [CHAIN_COLORS[c % len(CHAIN_COLORS)] for c in ids], edits)
+        _assign(self.trace_plot, spec, self._sent.setdefault("trace", {}))
         samples = [ctrl.samples(c) for c in ids]
         w = ctrl.warmup   # the kept draws: after max(warm-up, half) of each chain (none yet in warm-up)
         kept = np.concatenate([s[burn_in(len(s), w):] for s in samples] + [np.empty((0, len(ctrl.names)))])
-        bounds = ctrl.settings.bounds
         starts = np.array(list(ctrl.starts().values()), float).reshape(-1, len(ctrl.names))
         for j, n in enumerate(ctrl.names):
-            lo, hi = bounds[n]
-            if j in self._integer:   # one bin per integer, at the integer (30 bins over 5..30 leave gaps)
-                ks = np.arange(np.ceil(lo), np.floor(hi) + 1)
-                edges = np.append(ks - 0.5, ks[-1] + 0.5) if len(ks) else np.array([lo, hi])
-                x = ks.astype(float) if len(ks) else np.array([lo])
-            else:
-                edges = np.linspace(lo, hi, 31)
-                x = edges[:-1].astype(float)
-            counts = np.histogram(kept[:, j], bins=edges)[0].astype(float)
-            # where the chains started (counts x 10, so 16 chains show beside thousands of draws)
-            started = 10.0 * np.histogram(starts[:, j], bins=edges)[0].astype(float)
-            data = [x, counts, started]
-            if n in self._recognized:   # the recognition model's density, its peak at the posterior's
-                dens = self._recognized[n](x + (edges[1] - edges[0]) / 2)
-                data.append(dens / max(float(dens.max()), 1e-300) * max(float(counts.max()), 1.0))
-            self.hist_plots[n].data = tuple(data)
+            spec = histogram_spec(kept[:, j], starts[:, j], ctrl.settings.bounds[n], self._specs[n],
+                                  integer=j in self._integer, recognized=self._recognized.get(n))
+            _assign(self.hist_plots[n], spec, self._sent.setdefault(n, {}))
 
     def _play_loop(self) -> None:
         while not self._stop.is_set():

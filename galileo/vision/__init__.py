@@ -1,7 +1,9 @@
 """Vision: pixels -> object poses, one module per job, for any scenario.
 
 * `background`: MOG2 background models, foreground masks, the sensor-noise estimate, mask
-  cleaning, resolution changes and connected components (blobs).
+  cleaning, resolution changes and connected components (blobs); the working scale and the
+  frames a model learns from that bound memory for any video, and frames that show
+  something else than the scene.
 * `silhouette`: a 3-D shape at a pose projected into a filled image mask, the IoU loss
   against an observed silhouette, and fits of shape and pose to it (Nelder-Mead).
 * `klt`: good features inside a silhouette, the KLT window that fits it, pyramidal

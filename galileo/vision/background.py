@@ -4,6 +4,13 @@ MOG2 background images learned from the video itself (forwards or backwards in t
 pixels that differ from a background by more than the sensor noise allows, the noise
 estimate, mask cleaning (open, then close), resolution changes, and connected components
 of a mask (blobs) as filled convex silhouettes.
+
+Memory: the trackers stream a video (galileo.video.VideoStream) and keep what these models
+need, so both are bounded for any video. Models and masks run at most at WORK_MAX_PX pixels
+a frame (a 1080p video's half resolution; a larger video is shrunk further: a 4K one to a
+quarter), and a model learned over a stretch of frames that must be replayed (backwards in
+time) learns from at most MODEL_MAX_FRAMES of them, evenly spaced (every frame of a stretch
+up to that long, as before). Together they hold at most 120 x 0.5 Mpx x 3 = 187 MB of frames.
 """
 from __future__ import annotations
 
@@ -25,14 +32,27 @@ NOISE_SD_FLOOR = 0.5       # added to the estimate (quantisation)
 CLEAN_KERNEL_PX = 3        # ellipse for opening and closing foreground masks
 CLOSE_ITERATIONS = 2
 MIN_BLOB_PX = 60           # smallest component that counts as an object (full resolution)
+WORK_MAX_PX = 960 * 540    # background models and foreground masks: at most this many pixels a frame
+MODEL_MAX_FRAMES = 120     # a replayed model learns from at most this many frames (4 s at 30 fps: every frame of
+# the videos Galileo renders; a scene's end looks the same over a longer stretch, sampled)
+HIDDEN_FRACTION = 0.5      # a frame more than this fraction of which differs from the video's first shows something
+# else (noise, a cut, a hand over the lens, the light switched; the objects cover far less): nothing in it is tracked
+HIDDEN_STEP_PX = 4         # ... judged on every 4th pixel each way (4800 of a 640x480 video's half resolution)
+
+
+def mog2(history: int):
+    """An OpenCV MOG2 model (five components) for `history` frames: feed it frames with
+    `.apply`, read its background with `.getBackgroundImage()`."""
+    mog = cv2.createBackgroundSubtractorMOG2(history=max(history, 2), varThreshold=MOG_VAR_THRESHOLD,
+                                             detectShadows=False)
+    mog.setNMixtures(MOG_MIXTURES)
+    return mog
 
 
 def mog2_background(frames: np.ndarray, reverse: bool) -> np.ndarray:
     """Background image of a MOG2 model (five components) learned over the frames,
     forwards or backwards in time."""
-    mog = cv2.createBackgroundSubtractorMOG2(history=max(len(frames), 2), varThreshold=MOG_VAR_THRESHOLD,
-                                             detectShadows=False)
-    mog.setNMixtures(MOG_MIXTURES)
+    mog = mog2(len(frames))
     for i in (range(len(frames) - 1, -1, -1) if reverse else range(len(frames))):
         mog.apply(frames[i])
     return mog.getBackgroundImage()
@@ -59,9 +79,55 @@ def clean(mask: np.ndarray) -> np.ndarray:
     return cv2.morphologyEx(m, cv2.MORPH_CLOSE, k, iterations=CLOSE_ITERATIONS)
 
 
-def shrink(frames, scale: float) -> np.ndarray:
-    """The frames resized by `scale` (area averaging), stacked."""
-    return np.stack([cv2.resize(f, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) for f in frames])
+def not_the_scene(frame: np.ndarray, first: np.ndarray, noise_sd: float) -> bool:
+    """Whether a frame shows something else than the scene: more than HIDDEN_FRACTION of its
+    pixels differ from the video's first frame `first` (at the same scale; every
+    HIDDEN_STEP_PX-th pixel each way looked at)."""
+    k = HIDDEN_STEP_PX
+    fg = foreground(frame[::k, ::k], first[::k, ::k], noise_sd)
+    return np.count_nonzero(fg) > HIDDEN_FRACTION * fg.size
+
+
+def spread(indices: np.ndarray, k: int) -> np.ndarray:
+    """At most k of the (ascending) frame indices, evenly spaced from the first to the last
+    (all of them if there are no more than k)."""
+    if len(indices) <= k:
+        return indices
+    return indices[np.unique(np.round(np.linspace(0, len(indices) - 1, k)).astype(int))]
+
+
+def frames_at(video, indices: np.ndarray, scale: float) -> list[np.ndarray]:
+    """The frames at the (ascending) indices of a video (`galileo.video.VideoStream`) as Y, U,
+    V images at `scale` (`yuv_image`): one more pass, ended after the last of them."""
+    want, out = set(int(i) for i in indices), []
+    for f, (y, uv) in enumerate(video.yuv()):
+        if f in want:
+            out.append(yuv_image(y, uv, scale))
+            if len(out) == len(want):
+                break
+    return out
+
+
+def work_scale(hw: tuple[int, int], most: float) -> float:
+    """The scale of a full frame (height, width `hw`) that models and masks run at: `most`,
+    or less where that would leave more than WORK_MAX_PX pixels."""
+    return min(most, math.sqrt(WORK_MAX_PX / (hw[0] * hw[1])))
+
+
+def scaled(image: np.ndarray, scale: float) -> np.ndarray:
+    """The image resized by `scale` (area averaging)."""
+    return cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+
+
+def yuv_image(y: np.ndarray, uv: np.ndarray, scale: float) -> np.ndarray:
+    """One frame's luma (H, W) and half-resolution chroma (H/2, W/2, 2) as a Y, U, V image at
+    `scale` of the full frame (chroma area-averaged when shrunk, bilinear when enlarged;
+    untouched at 0.5, its own resolution)."""
+    g = y if scale == 1.0 else scaled(y, scale)
+    hw = g.shape[:2]
+    if uv.shape[:2] != hw:
+        uv = resize_to(uv, hw, cv2.INTER_AREA if uv.shape[0] > hw[0] else cv2.INTER_LINEAR)
+    return np.concatenate([g[..., None], uv], axis=-1)
 
 
 def resize_to(image: np.ndarray, hw: tuple[int, int], interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:

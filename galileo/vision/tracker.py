@@ -11,6 +11,7 @@ from .silhouette import project_silhouette
 
 MAX_FEATURES = 48          # features per object
 RESEED_FRACTION = 0.5      # re-seed when fewer than this fraction of the most ever seeded remain
+MIN_SEEN_FRACTION = 0.25   # an object seen in fewer than this fraction of the frames gets a note
 
 
 class ObjectTracker:
@@ -74,9 +75,9 @@ class ObjectTracker:
         """Too few features left: re-seed."""
         return len(self.pts) < max(MIN_INLIERS * 2, int(self.n_seeded * RESEED_FRACTION))
 
-    def predict(self) -> np.ndarray:
-        """The pose expected in the next frame (constant velocity)."""
-        return self.pose + self.velocity
+    def predict(self, frames: int = 1) -> np.ndarray:
+        """The pose expected `frames` frames on (constant velocity)."""
+        return self.pose + frames * self.velocity
 
     def reset(self, pose: np.ndarray) -> None:
         """Found again at `pose` after it was lost: at rest, no longer lost."""
@@ -106,3 +107,17 @@ class ObjectTracker:
     def _in_view(self) -> bool:
         uv = self.project(np.zeros((1, 3)), self.pose)[0]
         return 0 <= uv[0] < self.cam.width_px and 0 <= uv[1] < self.cam.height_px
+
+
+def rarely_seen_notes(objects) -> list[str]:
+    """A note (for `Tracks.notes`) for each tracked object (`ObjectTrack`) seen in fewer than
+    MIN_SEEN_FRACTION of the frames: what inference learns of it rests on those frames alone,
+    and a scene file that describes another video (or the object's start wrongly) looks so."""
+    notes = []
+    for o in objects:
+        k, n = int(np.count_nonzero(o.visible)), len(o.visible)
+        if k < MIN_SEEN_FRACTION * n:
+            notes.append(f"{o.name} ({o.role}) is seen in only {k} of {n} frames ({k / n:.1%}): what inference "
+                         f"learns of it rests on those; check that the scene file's camera and start describe "
+                         f"this video")
+    return notes

@@ -134,7 +134,8 @@ def scene_from_clicks(uv, *, width_px: int, height_px: int, fps: float, n_frames
                       target_distance_m: float | None = None, target_size_m=None):
     """(scene, RMS reprojection error in pixels) for a user's video from the four clicks and
     the ramp's measurements: the camera from `camera_from_clicks`, the ramp's size and angle,
-    the object starting `start_m` up the ramp (foot to centre; None: the paper's 30 units),
+    the object starting `start_m` up the ramp (foot to centre; None: the paper's 30 units, or the
+    ramp's middle on a ramp too short for them),
     and the target if any. `galileo scene` and the browser's calibration both build it here.
     Every number is checked; a wrong one is a GalileoError naming it."""
     import dataclasses
@@ -161,7 +162,13 @@ def scene_from_clicks(uv, *, width_px: int, height_px: int, fps: float, n_frames
                                   focal_px=focal_px)
     scene = default_scene(angle_deg, target=target, camera=cam,
                           distance_m=DEFAULT_TARGET_DISTANCE_M if target_distance_m is None else target_distance_m)
-    start_m = Scene.start_units * Scene.unit_m if start_m is None else start_m
+    half_m = scene.ramp_object.shape.size_m[0] / 2
+    if start_m is None:   # the paper's 30 units where the ramp is long enough; else its middle
+        start_m = min(Scene.start_units * Scene.unit_m, length_m / 2)
+    elif not half_m <= start_m <= length_m - half_m:
+        raise GalileoError(f"the start {start_m:g} m up the ramp puts the object ({2 * half_m:g} m long) past the "
+                           f"ramp's {'foot' if start_m < half_m else 'top'}: give --start-m from {half_m:g} to "
+                           f"{length_m - half_m:g} m (foot to the object's centre)")
     scene = dataclasses.replace(scene, ramp=Ramp(angle_deg, length_m, width_m), start_units=start_m / scene.unit_m)
     if target_size_m is not None:
         if scene.target is None:

@@ -221,11 +221,12 @@ class VelocityLikelihood:
         self._fixed = self._make_noise(self.sigma_mps)
         self.log_norm = self._fixed.log_norm    # the normaliser at the fixed sigma
         self._sigma_at = self.names.index(SIGMA_LATENT) if self.infer_sigma else None
-        self.sim = Simulator(self.scene)
         self.spf = int(round(self.scene.sim_hz / self.fps))
         # each object's farthest surface point from its centre (a bound for `_reach_m`)
         self._radius_m = [0.5 * float(np.linalg.norm(o.shape.size_m)) for o in self.scene.objects]
-        self._target_alone = self._simulate_target_alone() if len(self.scene.objects) == 2 else None
+        with client_lock:    # another thread's simulation (the viewer's, rerun's) must not step this world
+            self.sim = Simulator(self.scene)
+            self._target_alone = self._simulate_target_alone() if len(self.scene.objects) == 2 else None
         self._prefixes: OrderedDict[tuple, _Prefix] = OrderedDict()
         self._cache_size = cache_size
         # result reuse: only a sigma proposal repeats the physics of a recent evaluation

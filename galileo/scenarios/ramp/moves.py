@@ -37,7 +37,8 @@ RATIO_WIDTH = 0.2       # initial log-space width of the mass-ratio move (adapte
 def k1_from_acceleration(scene: Scene, tracks: Tracks) -> tuple[float, float] | None:
     """(k1_hat, its standard error) from the ramp object's tracked velocity along the slope
     in the frames it is on the ramp (least squares v = a t + b); None with fewer than
-    MIN_FRAMES such frames."""
+    MIN_FRAMES such frames. The scene's gravity is above 0 (scene.GRAVITY_MPS2: without it
+    nothing slides and k1 is not identified; the estimate divides by g)."""
     tr = tracks.by_role("ramp")
     if tr is None:
         return None

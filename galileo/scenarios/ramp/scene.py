@@ -17,7 +17,7 @@ from typing import Any, ClassVar, Iterable
 
 import numpy as np
 
-from ...camera import Camera, camera_from_json, check_camera, check_run, look_at_camera
+from ...camera import Camera, camera_from_json, check_camera, check_run, look_at_camera, physics_hz
 from ...errors import SceneError
 from ...fields import Bound, field_value, is_finite_number, is_number, number, pair, show, unknown_fields, where_of
 from ...latents import Latent, check_bounds
@@ -33,8 +33,12 @@ LATENTS = {"m1_kg": (0, "mass_kg"), "k1": (0, "friction"), "m2_kg": (1, "mass_kg
 # -- what a ramp scene may hold: every bound in one place, each with its reason -------------------
 # (checked where a file is parsed, where a scene is built in code, by `with_values`, so by
 # `galileo simulate --set` and its quick form too; an error names the field and the bound)
-MASS_KG = Bound(0.0, 100.0, lo_open=True)   # a tabletop ramp's objects: a mass above 0 (Bullet needs one), at
-# most 100 kg (a heavier one would crush the ramp; 1e308 kg overflows Bullet's impulses into NaN)
+MASS_KG = Bound(1e-6, 100.0)                # a tabletop ramp's objects: at least 1 mg (a 1 mm grain of plastic,
+# below anything a camera tracks on a ramp; Bullet takes a mass under 2.2e-16 kg, its epsilon, for an immovable
+# one and a principal inertia under it for none: a 1e-18 kg object never moves and a 1e-9 kg millimetre
+# cylinder slides 18 mm off its path in a second, while from 1 mg every shape a scene may hold slides as at 1 kg
+# to 0.3 um, its smallest inertia 500 times that epsilon), at most 100 kg (a heavier one would crush the ramp;
+# 1e308 kg overflows Bullet's impulses into NaN)
 FRICTION = Bound(0.0, 10.0)                 # Coulomb coefficients: rubber on concrete is about 1; 10 holds
 # anything on any ramp under 60 degrees
 RESTITUTION = Bound(0.0, 1.0)               # 0 (no bounce) to 1 (elastic): above 1 a bounce would make energy
@@ -56,10 +60,12 @@ START_UNITS = Bound(0.0, 1e6)               # the nominal start in units, >= 0; 
 # checked against the ramp's length
 OFFSET_UNITS = Bound(-10_000, 10_000, integer=True)   # whole units (never rounded); |offset| <= 10000 keeps the
 # arithmetic exact, and the start must still lie on the ramp (checked against its length)
-SIM_HZ = Bound(60, 10_000, integer=True)    # Bullet steps per second: at least 60 (slower, a 1 m/s object moves
+SIM_HZ = Bound(60, 10_000)                  # Bullet steps per second: at least 60 (slower, a 1 m/s object moves
 # a third of a 5 cm block a step: contacts are resolved too coarsely), at most 10 kHz (40x the cost of the 240
 # every dataset uses)
-GRAVITY_MPS2 = Bound(0.0, 100.0)            # downwards, 0 (nothing moves) to 100 m/s^2 (10 g; beyond any lab)
+GRAVITY_MPS2 = Bound(0.0, 100.0, lo_open=True)   # downwards, above 0 (without gravity nothing slides: the video
+# holds no evidence of any latent, and k1's estimate from the slide, moves.k1_from_acceleration, divides by g),
+# at most 100 m/s^2 (10 g; beyond any lab)
 MAX_STEPS = 2_000_000                       # physics steps of one simulated video (camera.n_frames x sim_hz /
 # camera.fps) at most: about a minute of Bullet on one core; inference repeats it thousands of times
 STUDENT_T_DOF = Bound(0.0, 1000.0, lo_open=True)   # degrees of freedom of the Student-t observation model:
@@ -288,7 +294,7 @@ class Scene(SceneFile):
     camera: Camera | None = None
     unit_m: float = 0.02
     start_units: float = 30.0
-    sim_hz: int = 240
+    sim_hz: float = 240   # asked; with a camera, the multiple of its fps nearest it (camera.physics_hz)
     gravity_mps2: float = 9.81
     priors: Priors = field(default_factory=Priors)
     # The restitution of the ramp object's collision with the target (None: the objects' own,
@@ -439,6 +445,7 @@ class Scene(SceneFile):
             if not isinstance(self.camera, Camera):
                 raise SceneError(f"camera: expected a camera, got {show(self.camera)}")
             check_camera(self.camera)
+            object.__setattr__(self, "sim_hz", physics_hz(self.sim_hz, self.camera.fps, SIM_HZ))  # whole steps a frame
             check_run(self.sim_hz, self.camera.fps, self.camera.n_frames, MAX_STEPS)
 
     def to_json(self) -> dict:

@@ -7,6 +7,12 @@ Pipeline, for a video and a scene file whose camera describes it:
    ends: at frame 0 that shows every object that later leaves its start (a forward model
    cannot, it starts from frame 0). Forwards over all frames at quarter resolution, it
    gives the scene as it starts, against which the last frame shows whether anything moved.
+   (Bounded for any video, `galileo.vision.background`: the end's model learns from at
+   most MODEL_MAX_FRAMES frames of the last third, evenly spaced, and a video larger than
+   1080p runs both at less than half resolution.) A frame most of which differs from frame
+   0 (noise, a cut, a hand over the lens: `not_the_scene`) shows something else: it is
+   left out of both models, no object is seen in it, and tracking goes on from the last
+   frame that showed the scene (the constant-velocity prediction spanning the gap).
 2. Detection and roles: the ramp object is the uphill-most foreground component at frame 0
    within the band of start positions its offset prior allows (the frame-0 foreground also
    holds "ghosts" where objects come to rest later); the target is where the scene file
@@ -29,6 +35,12 @@ Pipeline, for a video and a scene file whose camera describes it:
    ends of a visible run), no smoothing. Frames where an object is not seen are marked
    `visible: false` with null position and velocity, never invented.
 
+The video is streamed (`galileo.video.VideoStream`): one pass learns the background models,
+a second tracks, holding the frame before; memory does not grow with the video's length.
+Before any of it, a scene whose camera sees none of it (ramp, object, target) is refused.
+The tracks carry notes for a video whose frames are unevenly timed (a variable frame rate)
+and for an object seen in few of its frames.
+
 A video in which nothing moves (no foreground at its start or its end) is evidence, not an
 error: every object is reported where the scene file puts it, at rest in every frame, with
 a note (`held_still`); inference then finds the ramp object's friction at least tan of the
@@ -47,26 +59,28 @@ from pathlib import Path
 import numpy as np
 
 from ...progress import tqdm
-from ...camera import backproject_to_plane
+from ...camera import backproject_to_plane, check_sees
 from ...datatypes import ObjectTrack, Tracks
 from ...errors import GalileoError
 from ...shapes import SHAPE_TYPES, Shape, shape_class
-from ...video import read_video_yuv, yuv_to_rgb
+from ...video import VideoStream, yuv_to_rgb
 from ...vision import shapenet
-from ...vision.background import (MOG_SCALE, blobs, clean, dilate, erode, foreground, full_res, largest_component,
-                                  mog2_background, noise_sd, resize_to, shrink)
+from ...vision.background import (MODEL_MAX_FRAMES, MOG_SCALE, blobs, clean, dilate, erode, foreground, frames_at,
+                                  full_res, largest_component, mog2, mog2_background, noise_sd, not_the_scene,
+                                  resize_to, scaled, spread, work_scale, yuv_image)
 from ...vision.draw import draw_tracks
 from ...vision.klt import flow
 from ...vision.pose import rot_y
 from ...vision.silhouette import fill_polygon, fit_silhouette, project_silhouette, slide_silhouette
-from ...vision.tracker import ObjectTracker
+from ...vision.tracker import ObjectTracker, rarely_seen_notes
 from ...vision.velocity import velocity_from_positions
 from .scene import Scene
 
 END_MODEL_MIN_FRAMES = 10  # the end's background model: the last third of the video, at least this many frames
 END_MODEL_PART = 3
 START_MODEL_SCALE = 0.5    # the start's background model runs at this scale of MOG_SCALE (quarter resolution)
-NEAR_PX = 5                # full-resolution frame-0 foreground: within 2 px of the half-resolution one
+NEAR_MODEL_PX = 1          # full-resolution frame-0 foreground: within this many pixels of the models' (a square of
+# 2 x 1 / scale + 1 px: 5 at half resolution, 9 at a 4K video's quarter)
 BAND_FLOOR_M = 0.002       # the band of start positions begins this far above the ramp's surface
 MIN_AREA_FRACTION = 0.25   # detection: components smaller than this fraction of the largest are noise
 MIN_INIT_M = 0.005         # silhouette fit: sizes start at least this large
@@ -241,10 +255,11 @@ def still_note(scene: Scene) -> str:
             f"{math.tan(math.radians(angle)):.3f} and {unknown} not identified")
 
 
-def held_still(scene: Scene, n_frames: int) -> Tracks:
+def held_still(scene: Scene, n_frames: int, shown: np.ndarray | None = None) -> Tracks:
     """Tracks of a video in which nothing moves: every object where the scene file puts it
     (`Scene.initial_pose`; the ramp object's offset the scene's own), seen in every frame
-    at zero velocity, with the scene file's shapes and a note (`still_note`).
+    (every frame `shown`: that shows the scene) at zero velocity, with the scene file's
+    shapes and a note (`still_note`).
 
     The bottom-up recognition is not attempted: the background models hold the still
     objects themselves, so there is no silhouette to fit sizes and offset to (and the
@@ -255,57 +270,121 @@ def held_still(scene: Scene, n_frames: int) -> Tracks:
     objects = []
     for i, obj in enumerate(scene.objects):
         centre, _ = scene.initial_pose(i)
-        pos = np.tile([float(centre[0]), 0.0, float(centre[2])], (n_frames, 1))
-        vis = np.ones(n_frames, bool)
-        objects.append(ObjectTrack(obj.name, obj.role, pos, np.zeros((n_frames, 3)), vis, obj.shape,
+        vis = np.ones(n_frames, bool) if shown is None else shown.copy()
+        pos = np.where(vis[:, None], [float(centre[0]), 0.0, float(centre[2])], np.nan)
+        vel = np.where(vis[:, None], np.zeros(3), np.nan)
+        objects.append(ObjectTrack(obj.name, obj.role, pos, vel, vis, obj.shape,
                                    obj.offset_units if obj.role == "ramp" else None, "scene",
-                                   center_px=cam.project(pos)))
+                                   center_px=np.where(vis[:, None], cam.project(pos[0]), np.nan)))
     return Tracks(cam.fps, objects, [still_note(scene)]).check()
 
 
 # -- the whole pipeline ------------------------------------------------------------------------
 
+def scene_points(scene: Scene) -> dict[str, np.ndarray]:
+    """What the camera should see of the scene (world points by name): the ramp's top surface's
+    corners, the ramp object where it starts, the target where it stands."""
+    r = scene.ramp
+    parts = {"the ramp": np.array([-s * r.downhill + (0.0, y, 0.0) for s in (0.0, r.length_m)
+                                   for y in (-r.width_m / 2, r.width_m / 2)]),
+             "the ramp object's start": scene.initial_pose(0)[0]}
+    if scene.target is not None:
+        parts["the target"] = scene.initial_pose(1)[0]
+    return parts
+
+
+@dataclass
+class _SceneModels:
+    """What the first pass over a video keeps (see `_learn_scene`)."""
+    y0: np.ndarray          # frame 0's luma and chroma planes
+    uv0: np.ndarray
+    small0: np.ndarray      # frame 0 at the models' scale (Y, U, V)
+    noise: float            # sensor noise (levels), from frames 0 and 1
+    bg_end: np.ndarray      # the scene as it ends (the models' scale)
+    fg_last: np.ndarray     # the last frame against the scene as it starts (a mask, quarter of the models' scale)
+    shown: np.ndarray       # (n,) whether each frame shows the scene (`not_the_scene`)
+
+
+def _end_part(indices: np.ndarray) -> np.ndarray:
+    """The frames the scene's end is learned from: the last third of `indices` (at least
+    END_MODEL_MIN_FRAMES), at most MODEL_MAX_FRAMES of them. The last third only, so that a
+    slow object's start is clear of it even if it lingered there for much of the video."""
+    return spread(indices[-max(min(END_MODEL_MIN_FRAMES, len(indices)), len(indices) // END_MODEL_PART):],
+                  MODEL_MAX_FRAMES)
+
+
+def _learn_scene(video: VideoStream, n: int, scale: float, bar) -> _SceneModels:
+    """The first pass: the background models (module docstring, step 1), frame 0, the noise,
+    and which frames show the scene (frames that do not are left out of both models).
+
+    The scene as it ends is learned backwards over the last third, from at most
+    MODEL_MAX_FRAMES of its frames (kept in this pass; taken in another from the frames that
+    show the scene, if some do not), the scene as it starts forwards over every frame as it
+    comes (at START_MODEL_SCALE of the models' scale).
+    """
+    planned = set(_end_part(np.arange(n)).tolist())
+    ends = []
+    start_model = mog2(n)
+    shown = np.ones(n, bool)
+    first = noise = tiny = None
+    for f, (y, uv) in enumerate(video.yuv()):
+        bar.update()
+        small = yuv_image(y, uv, scale)
+        if f == 0:
+            first = (y, uv, small)
+        else:
+            if f == 1:
+                noise = noise_sd([first[2], small])
+            if not_the_scene(small, first[2], noise):
+                shown[f] = False
+                continue
+        if f in planned:
+            ends.append(small)
+        tiny = scaled(small, START_MODEL_SCALE)
+        start_model.apply(tiny)
+    if not shown.all():
+        ends = frames_at(video, _end_part(np.flatnonzero(shown)), scale)
+    bg_end = mog2_background(ends, reverse=True)
+    fg_last = foreground(tiny, start_model.getBackgroundImage(), noise)
+    return _SceneModels(*first, noise, bg_end, fg_last, shown)
+
+
 def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
           debug_video: str | Path | None = None) -> Tracks:
-    """Track the scene's objects in a video; see the module docstring for the method."""
+    """Track the scene's objects in a video; see the module docstring for the method.
+
+    The video is decoded twice (three times with a debug video) and never held: the first
+    pass learns the background models, the second tracks, keeping the frame before."""
     if scene.camera is None:
         raise GalileoError("the scene file has no camera: tracking needs one that describes the video")
     cam = scene.camera
+    check_sees(cam, scene_points(scene))
     # the video must be the one the camera describes: its size, frame rate and length
     # (galileo.video.check_stream / check_length say why each is checked as it is)
-    gray, chroma, info = read_video_yuv(video_path, cam, min_frames=2)
-    n = len(gray)
+    video = VideoStream(video_path, cam, min_frames=2)
+    n = int(cam.n_frames)   # the video's length (the first pass checks it)
     fps = cam.fps
-    bar = tqdm(total=3 * n, desc="tracking", unit="frame", disable=not progress)
-    # half resolution Y, U, V for the background model (chroma is stored at half resolution)
-    small = np.concatenate([shrink(gray, MOG_SCALE)[..., None], chroma], axis=-1)
-    first_rgb = yuv_to_rgb(gray[0], chroma[0])
-    noise = noise_sd(small)
-    # the scene as it ends: learned from the last third only, so that a slow object's
-    # start is clear of it even if it lingered there for much of the video
-    tail = max(min(END_MODEL_MIN_FRAMES, n), n // END_MODEL_PART)
-    bg_end = mog2_background(small[n - tail:], reverse=True)
-    bar.update(n)
-    # the scene as it starts (forwards over all frames; quarter resolution is enough here)
-    tiny = shrink(small, START_MODEL_SCALE)
-    bg_start = mog2_background(tiny, reverse=False)
-    bar.update(n)
-    full_hw = gray.shape[1:]
-    fg0_small = full_res(foreground(small[0], bg_end, noise), full_hw)
-    fg_last = full_res(foreground(tiny[-1], bg_start, noise), full_hw)
-    if largest_component(fg0_small) is None and largest_component(fg_last) is None:
+    full_hw = (cam.height_px, cam.width_px)
+    scale = work_scale(full_hw, MOG_SCALE)
+    bar = tqdm(total=2 * n, desc="tracking", unit="frame", disable=not progress)
+    models = _learn_scene(video, n, scale, bar)
+    notes = [note for note in (video.timing_note(),) if note]
+    noise, bg_end, small0 = models.noise, models.bg_end, models.small0
+    fg0_small = full_res(foreground(small0, bg_end, noise), full_hw)
+    if largest_component(fg0_small) is None and largest_component(full_res(models.fg_last, full_hw)) is None:
         bar.close()   # nothing moves: evidence in itself (the ramp object holds on the ramp)
-        tracks = held_still(scene, n)
+        tracks = held_still(scene, n, models.shown)
+        tracks.notes.extend(notes + rarely_seen_notes(tracks.objects))
         if debug_video is not None:
-            write_debug_video(debug_video, (yuv_to_rgb(g, c) for g, c in zip(gray, chroma)), tracks, fps)
+            write_debug_video(debug_video, (yuv_to_rgb(y, uv) for y, uv in video.yuv()), tracks, fps)
         return tracks
 
-    # frame-0 foreground at full resolution, within 2 px of the robust half-resolution one
-    near = dilate(fg0_small, NEAR_PX)
+    # frame-0 foreground at full resolution, within a model pixel of the robust (half-resolution) one
+    near = dilate(fg0_small, 2 * round(NEAR_MODEL_PX / scale) + 1)
     bg_full = resize_to(bg_end, full_hw)
-    first_yuv = np.concatenate([gray[0][..., None], resize_to(chroma[0], full_hw)], -1)
-    fg0 = near & (clean(foreground(first_yuv, bg_full, noise)) > 0)
+    fg0 = near & (clean(foreground(yuv_image(models.y0, models.uv0, 1.0), bg_full, noise)) > 0)
     found = _detect_start(scene, fg0)
+    first_rgb = yuv_to_rgb(models.y0, models.uv0)
 
     trackers: list[ObjectTracker] = []
     starts: list[tuple[_Frame0, str]] = []
@@ -319,7 +398,7 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
         else:
             f0 = _measure(scene, obj.role, mask, first_rgb)
         tr = ObjectTracker(f0.shape, f0.mask, np.array([f0.center_xz[0], f0.center_xz[1], -f0.phi0]), cam, n)
-        tr.add_features(gray[0], mask)
+        tr.add_features(models.y0, mask)
         tr.fit(0)
         trackers.append(tr)
         starts.append((f0, how))
@@ -327,8 +406,15 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
             lo, hi = scene.priors.offset_units
             off = round(f0.s_along_m / scene.unit_m - scene.start_units)
             offsets[obj.name] = int(min(max(off, lo), hi))
-    for f in range(1, n):
-        preds = [t.predict() for t in trackers]
+    frames = video.yuv()
+    prev, _ = next(frames)   # (frame 0: done above)
+    last = 0                 # the frame prev is: the last that shows the scene
+    bar.update()
+    for f, (gray, chroma) in enumerate(frames, start=1):
+        bar.update()
+        if not models.shown[f]:   # not the scene: nothing seen in it; tracking goes on from the last that was
+            continue
+        preds = [t.predict(f - last) for t in trackers]
         masks: dict[int, np.ndarray] = {}
 
         def predicted(j):  # computed only when a tracker needs to look around
@@ -337,7 +423,7 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
             return masks[j]
 
         def others_of(k):
-            out = np.zeros((cam.height_px, cam.width_px), bool)
+            out = np.zeros(full_hw, bool)
             for j in range(len(trackers)):
                 if j != k:
                     out |= dilate(predicted(j), OTHERS_MARGIN_PX)
@@ -350,7 +436,7 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
             group = [k for k in live if trackers[k].win == win]
             pts = np.concatenate([trackers[k].pts for k in group])
             guess = np.concatenate([trackers[k].project(trackers[k].obj, preds[k]) for k in group])
-            new, ok = flow(gray[f - 1], gray[f], pts, guess, win)
+            new, ok = flow(prev, gray, pts, guess, win)
             start = 0
             for k in group:
                 t = trackers[k]
@@ -363,17 +449,17 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
             if t.lost:  # re-acquire it among the moving pixels near where it should be
                 if moving is None:
                     # pixels that differ both from the scene's end and from its start
-                    moving = full_res(foreground(small[f], bg_end, noise) & foreground(small[f], small[0], noise),
-                                      full_hw)
+                    small = yuv_image(gray, chroma, scale)
+                    moving = full_res(foreground(small, bg_end, noise) & foreground(small, small0, noise), full_hw)
                 near = dilate(predicted(k), REACQUIRE_PX)
                 blob = largest_component(moving & near & ~others_of(k))
                 if blob is not None:
                     _relocate(scene, t, blob)
-                    t.add_features(gray[f], blob)
+                    t.add_features(gray, blob)
                     t.fit(f, t.pose)
             elif t.needs_features():
-                t.add_features(gray[f], erode(t.predicted_mask(), RESEED_ERODE_PX) & ~others_of(k))
-        bar.update()
+                t.add_features(gray, erode(t.predicted_mask(), RESEED_ERODE_PX) & ~others_of(k))
+        prev, last = gray, f
     bar.close()
 
     objects = []
@@ -388,9 +474,9 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
         centre_px[vis] = cam.project(pos[vis])
         objects.append(ObjectTrack(obj.name, obj.role, pos, vel, vis.copy(), f0.shape, offsets.get(obj.name),
                                    how, center_px=centre_px, features_px=t.features))
-    tracks = Tracks(fps, objects).check()   # what `galileo track` writes, `Tracks.load` reads
+    tracks = Tracks(fps, objects, notes + rarely_seen_notes(objects)).check()   # what `galileo track` writes
     if debug_video is not None:
-        write_debug_video(debug_video, (yuv_to_rgb(g, c) for g, c in zip(gray, chroma)), tracks, fps)
+        write_debug_video(debug_video, (yuv_to_rgb(y, uv) for y, uv in video.yuv()), tracks, fps)
     return tracks
 
 
@@ -398,4 +484,4 @@ def write_debug_video(path: str | Path, frames_rgb, tracks: Tracks, fps: float) 
     """The video with each object's features, centre, trail and role drawn over it (H.264)."""
     from ...video import write_video
 
-    write_video(path, [draw_tracks(frame, tracks, f, ROLE_COLORS) for f, frame in enumerate(frames_rgb)], fps)
+    write_video(path, (draw_tracks(frame, tracks, f, ROLE_COLORS) for f, frame in enumerate(frames_rgb)), fps)

@@ -92,6 +92,14 @@ class SplashScenario(Scenario):
 
         return SplashLikelihood(prepared_scene, tracks, noise, speedups)
 
+    # the seed's water-drag widths, U(-0.0005, 0.0005) and every 20th sweep U(-0.002, 0.002), for
+    # `--moves paper`; the default moves start from 0.05 / 0.5 (as area and density) and adapt: from
+    # the seed's, 37 warm-up sweeps grow a width at most about 100-fold, and drag never left its
+    # start (R-hat 22 on the demo at 50 x 75; 9 with these)
+    paper_widths = {"drag_water": (0.0005, 0.002)}
+    starts_doc = ("as the seed starts them: the bottom area at which the object's dimensions are equal and "
+                  "density 0.5 g/cm^3 (every chain alike); water drag and start step drawn from the prior")
+
     def initial_positions(self, prepared_scene, latents, bounds, n_chains, seed):
         """The seed's start: the bottom area at which the object's dimensions are equal, density
         0.5 g/cm^3; water drag and start frame drawn from the prior (clipped into the bounds)."""

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 
-from ...camera import Camera, camera_from_json, check_camera, check_run, look_at_camera
+from ...camera import Camera, camera_from_json, check_camera, check_run, look_at_camera, physics_hz
 from ...errors import SceneError
 from ...fields import (Bound, field_value, is_finite_number, is_number, number, pair, show, unknown_fields,
                        where_of)
@@ -63,8 +63,11 @@ VOLUME_CM3 = Bound(0.01, 100.0)             # the seed's objects: 0.01 cm^3 (a 2
 VOLUME_RANGE_CM3 = (VOLUME_CM3.lo, VOLUME_CM3.hi)
 AREA_CM2 = Bound(0.0, 1000.0, lo_open=True)   # bottom area: above 0; at most 1000 cm^2 (a 32 cm square, the
 # size of the tank; the shape must also fit the tank, checked with it)
-DENSITY_G_CM3 = Bound(0.0, 25.0, lo_open=True)  # above 0 (Bullet needs a mass), at most 25 g/cm^3 (osmium's
-# 22.6 is the densest element)
+DENSITY_G_CM3 = Bound(0.001, 25.0)          # at least 0.001 g/cm^3 (1 kg/m^3, about air's 1.2: a lighter object
+# would not fall through the air, whose buoyancy the splash leaves out; the paper's prior starts here; Bullet
+# takes a mass under 2.2e-16 kg, its epsilon, for an immovable one, so a 1e-300 g/cm^3 object hung at its release
+# point, while the smallest object now, 0.01 cm^3, weighs 1e-8 kg and, at least 2 mm across, has inertias 30
+# times that epsilon), at most 25 g/cm^3 (osmium's 22.6 is the densest element)
 DRAG_WATER = Bound(0.0, 100.0)              # a drag coefficient: 0 (none: a free fall), about 1 for a blunt body
 # and 2 for a plate broadside; at most 100 (50 plates), far beyond any body yet finite. The latent's prior
 # bounds must lie in (0, 100]: above 0, as the paper's prior U(0.001, 2)
@@ -77,9 +80,10 @@ LIQUID_DENSITY_KG_M3 = Bound(1.0, 5000.0)   # the liquid: from a gas-like 1 kg/m
 # liquid but mercury and molten metals)
 MAX_DROP_M = 1.0                            # the release point at most 1 m above the water (from higher the object
 # hits the water at over 4.4 m/s, a splash beyond this model, and leaves the camera's view)
-SIM_HZ = Bound(60, 10_000, integer=True)    # Bullet steps per second: at least 60 (the water's forces are applied
+SIM_HZ = Bound(60, 10_000)                  # Bullet steps per second: at least 60 (the water's forces are applied
 # once a step: slower, a falling object crosses the surface in one), at most 10 kHz (40x the cost of 240)
-GRAVITY_MPS2 = Bound(0.0, 100.0)            # downwards, 0 (nothing falls) to 100 m/s^2 (10 g; beyond any lab)
+GRAVITY_MPS2 = Bound(0.0, 100.0, lo_open=True)   # downwards, above 0 (without gravity nothing falls: the object
+# hangs at its release point and the video holds no evidence), at most 100 m/s^2 (10 g; beyond any lab)
 MAX_STEPS = 2_000_000                       # physics steps of one simulated video (start_step + frames x sim_hz /
 # fps) at most: about a minute of Bullet; inference repeats it thousands of times
 
@@ -87,9 +91,10 @@ LATENT_SPECS = {
     "area_cm2": Latent("area_cm2", "cm^2", (0.1, 20.0), "area the object shows the water from below (drag, shape)",
                        limits=(AREA_CM2.lo, AREA_CM2.hi), limits_open_low=True, narrow=0.05, broad=0.5),
     "density_g_cm3": Latent("density_g_cm3", "g/cm^3", (0.001, 2.0), "object's density (mass = density x volume)",
-                            limits=(DENSITY_G_CM3.lo, DENSITY_G_CM3.hi), limits_open_low=True, narrow=0.05, broad=0.5),
+                            limits=(DENSITY_G_CM3.lo, DENSITY_G_CM3.hi), limits_open_low=DENSITY_G_CM3.lo_open,
+                            narrow=0.05, broad=0.5),
     "drag_water": Latent("drag_water", "1", (0.001, 2.0), "drag coefficient in water (in air: 1e-3 x this)",
-                         limits=(DRAG_WATER.lo, DRAG_WATER.hi), limits_open_low=True, narrow=0.0005, broad=0.002),
+                         limits=(DRAG_WATER.lo, DRAG_WATER.hi), limits_open_low=True, narrow=0.05, broad=0.5),
     "start_step": Latent("start_step", "step", (5.0, 30.0), "physics step shown as the video's frame 0",
                           limits=(START_STEP.lo, START_STEP.hi), narrow=1.0, broad=1.0, integer=True),
 }
@@ -195,7 +200,7 @@ class SplashScene(SceneFile):
     release_m: tuple[float, float, float]     # the object's centre when it is let go (at rest)
     start_step: int = 10                       # physics step shown as the video's frame 0
     camera: Camera | None = None
-    sim_hz: int = 240
+    sim_hz: float = 240   # asked; with a camera, the multiple of its fps nearest it (camera.physics_hz)
     gravity_mps2: float = 9.81
     bounds: dict = field(default_factory=lambda: dict(DEFAULT_BOUNDS))
 
@@ -299,6 +304,7 @@ class SplashScene(SceneFile):
             if not isinstance(self.camera, Camera):
                 raise SceneError(f"camera: expected a camera, got {show(self.camera)}")
             check_camera(self.camera)
+            object.__setattr__(self, "sim_hz", physics_hz(self.sim_hz, self.camera.fps, SIM_HZ))  # whole steps a frame
             check_run(self.sim_hz, self.camera.fps, self.camera.n_frames, MAX_STEPS, self.start_step)
 
     def to_json(self) -> dict:

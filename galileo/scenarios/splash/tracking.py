@@ -5,7 +5,10 @@
    rest. Frame 0 against it shows the object falling through the air (the highest
    component) and a ghost of the resting object below it; the ghost's place, grown by
    END_ZONE_PX, takes the median of the first frames in which it still looks as in frame 0:
-   a background without the object.
+   a background without the object. (Bounded for any video, `galileo.vision.background`:
+   learned from at most MODEL_MAX_FRAMES frames, evenly spaced, at most 0.5 Mpx each.) A
+   frame most of which differs from frame 0 (noise, a cut: `not_the_scene`) is left out of
+   it, no object is seen in it, and tracking goes on from the last frame that showed the tank.
 2. Foreground per frame against it: the object (its largest component), in air or water
    (the water's tint is in the background too).
 3. KLT (`galileo.vision.klt`): good features inside the frame-0 silhouette, Lucas-Kanade
@@ -30,6 +33,10 @@
    the top face's outline curves, a few pixels: the vcyl wins only when its fit is
    better by KIND_MARGIN, else box.
 
+The video is streamed (`galileo.video.VideoStream`), never held; a scene whose camera sees
+none of it (the tank, the release point) is refused before any of it. The tracks carry
+notes for unevenly timed frames (a variable frame rate) and an object seen in few frames.
+
 Note: the rendered videos open with the object falling through the air (released 12-20 cm
 above the water, shown from physics step 5-30 on), so the first silhouettes are measured in
 air. Under water the renderer draws no refraction (a real flat-walled tank magnifies what is
@@ -42,16 +49,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ...camera import backproject_to_plane
+from ...camera import backproject_to_plane, check_sees
 from ...datatypes import ObjectTrack, Tracks
 from ...errors import GalileoError, StillVideo
+from ...progress import tqdm
 from ...shapes import Box, Cylinder
-from ...video import read_video_yuv
-from ...vision.background import (blobs, clean, dilate, foreground, largest_component, mog2_background,
-                                  noise_sd, resize_to)
+from ...video import VideoStream
+from ...vision.background import (MODEL_MAX_FRAMES, blobs, clean, dilate, foreground, frames_at, full_res,
+                                  largest_component, mog2_background, noise_sd, not_the_scene, spread, work_scale,
+                                  yuv_image)
 from ...vision.klt import flow, klt_window, seed_features
 from ...vision.pose import rot_y
 from ...vision.silhouette import fit_silhouette, shape_silhouette
+from ...vision.tracker import rarely_seen_notes
 from ...vision.velocity import velocity_from_positions
 from .scene import CM3, KINDS
 
@@ -149,45 +159,93 @@ def _resting_ghost(fg0: np.ndarray) -> np.ndarray | None:
     return np.any([c for j, c in enumerate(comps) if j != falling], axis=0)
 
 
-def background(yuv: np.ndarray, noise: float) -> np.ndarray:
-    """The tank without the object: MOG2 learned backwards over the whole video (the tank as
-    the video ends, the object at rest in it), its resting place replaced by the median of
-    the first frames in which that place still looks as in frame 0 (before the object got
+def background(sample: list[np.ndarray], early: list[np.ndarray], noise: float) -> np.ndarray:
+    """The tank without the object: MOG2 learned backwards over the video (`sample`: its frames,
+    or at most MODEL_MAX_FRAMES of them evenly spaced; the tank as the video ends, the object at
+    rest in it), its resting place replaced by the median of the first frames (`early`: the
+    first EARLY_FRAMES) in which that place still looks as in frame 0 (before the object got
     there). MOG2 learned forwards over the first frames is no substitute: it keeps frame 0's
     object, and an object that stops within those frames."""
-    bg = mog2_background(yuv, reverse=True)
-    ghost = _resting_ghost(clean(foreground(yuv[0], bg, noise)) > 0)
+    bg = mog2_background(sample, reverse=True)
+    first = early[0]
+    ghost = _resting_ghost(clean(foreground(first, bg, noise)) > 0)
     if ghost is None:
         return bg
     zone = dilate(ghost, END_ZONE_PX)
     k = 1
-    while k < min(EARLY_FRAMES, len(yuv)) and not (clean(foreground(yuv[k], yuv[0], noise)) > 0)[zone].any():
+    while k < len(early) and not (clean(foreground(early[k], first, noise)) > 0)[zone].any():
         k += 1
-    bg[zone] = np.median(yuv[:k, zone], axis=0).astype(bg.dtype)
+    bg[zone] = np.median(np.stack(early[:k])[:, zone], axis=0).astype(bg.dtype)
     return bg
 
 
+def _learn_tank(video: VideoStream, n: int, scale: float, bar):
+    """The first pass: (the background, the noise, which frames show the scene). Frames that
+    show something else (`not_the_scene`) are left out of the background; the frames it is
+    learned from are kept in this pass (taken in another from the frames that show the scene,
+    if some do not)."""
+    planned = set(spread(np.arange(n), MODEL_MAX_FRAMES).tolist())
+    sample, early = [], []
+    shown = np.ones(n, bool)
+    noise = None
+    for f, (y, uv) in enumerate(video.yuv()):
+        bar.update()
+        img = yuv_image(y, uv, scale)
+        if f == 1:
+            noise = noise_sd([early[0], img])
+        if f and not_the_scene(img, early[0], noise):
+            shown[f] = False
+            continue
+        if len(early) < EARLY_FRAMES:
+            early.append(img)
+        if f in planned:
+            sample.append(img)
+    if not shown.all():
+        sample = frames_at(video, spread(np.flatnonzero(shown), MODEL_MAX_FRAMES), scale)
+    return background(sample, early, noise), noise, shown
+
+
 def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=None) -> Tracks:
-    """Track the splash scene's object in a video; see the module docstring."""
+    """Track the splash scene's object in a video; see the module docstring.
+
+    The video is streamed, never held (`galileo.video.VideoStream`): a pass learns the
+    background, a second finds the first silhouettes (it stops there), a third tracks."""
     cam = scene.camera
     if cam is None:
         raise GalileoError("the scene file has no camera: tracking needs one that describes the video")
+    check_sees(cam, scene_points(scene))
+    (sx, sy, sz), eye = scene.tank.size_m, cam.position_in_world
+    if abs(eye[0]) < sx / 2 and abs(eye[1]) < sy / 2 and 0 <= eye[2] < sz:   # (an identity world_to_camera: its floor)
+        raise GalileoError(f"the camera stands inside the tank, at ({eye[0]:.2f}, {eye[1]:.2f}, {eye[2]:.2f}) m: "
+                           "check camera.world_to_camera, the transform from world to camera (x right, y down, "
+                           "z forward)")
     # the video must be the one the camera describes: its size, frame rate and length
     # (galileo.video.check_stream / check_length say why each is checked as it is)
-    gray, chroma, info = read_video_yuv(video_path, cam, min_frames=3)
-    n = len(gray)
-    hw = gray.shape[1:]
-    yuv = np.stack([np.concatenate([g[..., None], resize_to(c, hw)], -1) for g, c in zip(gray, chroma)])
-    noise = noise_sd(yuv)
-    bg = background(yuv, noise)
-    found = [largest_component(clean(foreground(f, bg, noise)) > 0) for f in yuv]
-    if sum(b is not None for b in found) < 2:
-        raise StillVideo(f"nothing moves in {video_path}: no object against the tank's background")
-    y_plane = float(scene.release_m[1])
+    video = VideoStream(video_path, cam, min_frames=3)
+    n = int(cam.n_frames)
+    hw = (cam.height_px, cam.width_px)
+    scale = work_scale(hw, 1.0)
+    bar = tqdm(total=2 * n, desc="tracking", unit="frame", disable=not progress)
+    bg, noise, shown = _learn_tank(video, n, scale, bar)
+
+    def silhouettes():
+        """Per frame: (luma, the object's silhouette at full resolution or None)."""
+        for i, (y, uv) in enumerate(video.yuv()):
+            fg = full_res(foreground(yuv_image(y, uv, scale), bg, noise), hw) if shown[i] else None
+            yield y, None if fg is None else largest_component(fg)
 
     # bottom-up: the first usable silhouettes
-    seen = [i for i, b in enumerate(found) if b is not None]
-    kind, w, h = bottom_up(cam, [found[i] for i in seen[:BOTTOM_UP_FRAMES]], y_plane)
+    first = []
+    for _, blob in silhouettes():
+        if blob is not None:
+            first.append(blob)
+            if len(first) == BOTTOM_UP_FRAMES:
+                break
+    if len(first) < 2:
+        bar.close()
+        raise StillVideo(f"nothing moves in {video_path}: no object against the tank's background")
+    y_plane = float(scene.release_m[1])
+    kind, w, h = bottom_up(cam, first, y_plane)
     shape, rot = _shape(kind, w, h)
 
     def expected(uv):
@@ -204,12 +262,16 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     c_prev, v_prev, i_prev = None, np.zeros(2), -1   # the last centre, its velocity (px/frame), its frame
     shift = np.zeros(2)                              # the features' motion since frame i_prev
     features = []
-    for i in range(n):
-        blob = found[i]
+    prev, last = None, 0                             # the last frame that shows the scene
+    for i, (gray, blob) in enumerate(silhouettes()):
+        bar.update()
+        if not shown[i]:   # not the scene: nothing seen in it; tracking goes on from the last that was
+            features.append(np.zeros((0, 2), np.float32))
+            continue
         c_klt = None
         if i and len(pts) and c_prev is not None:
             win = klt_window(blob) if blob is not None else 9
-            new, ok = flow(gray[i - 1], gray[i], pts, pts + v_prev.astype(np.float32), win)
+            new, ok = flow(prev, gray, pts, pts + ((i - last) * v_prev).astype(np.float32), win)
             if blob is not None:
                 inside = dilate(blob, 5)
                 ij = np.round(new).astype(int)
@@ -240,8 +302,10 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
             centre[i] = c_prev = c
             i_prev, shift = i, np.zeros(2)
         if blob is not None and len(pts) < max(MIN_FEATURES, N_FEATURES // 2):
-            pts = np.concatenate([pts, seed_features(gray[i], blob, N_FEATURES - len(pts), avoid=pts)])
+            pts = np.concatenate([pts, seed_features(gray, blob, N_FEATURES - len(pts), avoid=pts)])
         features.append(pts.copy())
+        prev, last = gray, i
+    bar.close()
     visible = np.all(np.isfinite(centre), axis=1)
     pos = np.full((n, 3), np.nan)
     pos[visible] = backproject_to_plane(cam, centre[visible], y_plane)
@@ -251,4 +315,13 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     vel = velocity_from_positions(pos, visible, cam.fps)
     obj = ObjectTrack(scene.obj.name, "object", pos, vel, visible, shape, None, "motion",
                       {"kind": kind, "volume_cm3": volume_cm3(kind, w, h)}, centre, features)
-    return Tracks(cam.fps, [obj]).check()   # what `galileo track` writes, `Tracks.load` reads
+    notes = [note for note in (video.timing_note(),) if note] + rarely_seen_notes([obj])
+    return Tracks(cam.fps, [obj], notes).check()   # what `galileo track` writes, `Tracks.load` reads
+
+
+def scene_points(scene) -> dict[str, np.ndarray]:
+    """What the camera should see of the scene (world points by name): the tank's inner
+    corners and the object where it is released."""
+    sx, sy, sz = scene.tank.size_m
+    corners = np.array([(x, y, z) for x in (-sx / 2, sx / 2) for y in (-sy / 2, sy / 2) for z in (0.0, sz)])
+    return {"the tank": corners, "the object's release": np.asarray(scene.release_m, float)}
