@@ -53,18 +53,30 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def demo_viewer(demo_dir, session_dir, *, chains: int, seed: int, sweeps: int):
-    """A controller with `sweeps` rounds done and a viewer on it: the frozen demo scene and
-    tracks, the rendered demo video for the pictures."""
+def demo_viewer(demo_dir, session_dir, *, chains: int, seed: int, sweeps: int, target: int | None = None):
+    """A controller with `sweeps` rounds done (its sweep target `target`, None: the default)
+    and a viewer on it: the frozen demo scene and tracks, the rendered demo video for the
+    pictures."""
     from galileo.video import read_video
     from ui.controller import Controller
     from ui.viewer import Viewer
 
     scene, tracks, _ = load_demo_frozen()
-    ctrl = Controller(scene, tracks, chains=chains, seed=seed, workers=1, session_dir=session_dir)
-    ctrl.run_sweeps(sweeps)
+    ctrl = Controller(scene, tracks, chains=chains, seed=seed, workers=1, session_dir=session_dir, sweeps=target)
+    if sweeps:
+        ctrl.run_sweeps(sweeps)
     video, _ = read_video(demo_dir / "video.mp4")
     return ctrl, Viewer(ctrl, ctrl.likelihood_scene, tracks, video, port=free_port())
+
+
+def view_basis(initial_camera) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(eye, forward, right, down) of a viser initial camera (world frame, +z up): a pinhole
+    view's axes, to project points into a browser's first view."""
+    eye, look = np.asarray(initial_camera.position, float), np.asarray(initial_camera.look_at, float)
+    fwd = (look - eye) / np.linalg.norm(look - eye)
+    right = np.cross(fwd, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    return eye, fwd, right, np.cross(fwd, right)
 
 
 def assert_same_decisions(fast, plain) -> None:

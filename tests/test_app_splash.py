@@ -129,13 +129,11 @@ def test_the_first_view_is_not_covered_by_the_video_cameras_frustum(splash_viewe
     its lines are a few screen pixels thick, not world-thick."""
     from ui.viewer import camera_pose
 
+    from conftest import view_basis
+
     ctrl, v = splash_viewer
     ic = v.server.initial_camera
-    eye, look = np.asarray(ic.position, float), np.asarray(ic.look_at, float)
-    fwd = (look - eye) / np.linalg.norm(look - eye)
-    right = np.cross(fwd, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(fwd, right)
+    eye, fwd, right, down = view_basis(ic)
     wxyz, pos, fov, aspect = camera_pose(v.camera)
     cam = v.camera
     r = cam.world_to_camera[:3, :3].T          # camera to world (OpenCV axes: x right, y down, z forward)

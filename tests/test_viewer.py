@@ -375,13 +375,11 @@ def test_letterbox_puts_every_pixel_where_the_pinhole_view_of_the_window_does(se
 def test_the_first_view_frames_the_scene(setup):
     """Defect 7: a new browser's first view shows the whole ramp large (at least 40% of a
     1600 x 1000 window's width), and the first sample shown is the MAP."""
+    from conftest import view_basis
+
     ctrl, v = setup
     ic = v.server.initial_camera
-    pos, look = np.asarray(ic.position, float), np.asarray(ic.look_at, float)
-    fwd = (look - pos) / np.linalg.norm(look - pos)
-    right = np.cross(fwd, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(fwd, right)
+    pos, fwd, right, down = view_basis(ic)
     ramp = np.concatenate([m.vertices for m in v.scenario.drawing(v.scene).static])
     pc = np.column_stack([(ramp - pos) @ right, (ramp - pos) @ down, (ramp - pos) @ fwd])
     assert (pc[:, 2] > 0).all()
@@ -436,14 +434,7 @@ def test_one_chain_resumed_the_others_held_is_explained_and_set_follows_the_chai
     "0 running / 2 chains ... sweep target 6"; "Set chain's latents" shows the selected chain's
     position (not chain 0's start with 16 digits), and a dimensionless latent's field has no
     "(1)"."""
-    from galileo.video import read_video
-    from conftest import free_port, load_demo_frozen
-    from ui.controller import Controller
-    from ui.viewer import Viewer
-
-    scene, tracks, _ = load_demo_frozen()
-    ctrl = Controller(scene, tracks, chains=2, seed=4, workers=1, session_dir=tmp_path / "s", sweeps=3)
-    v = Viewer(ctrl, ctrl.likelihood_scene, tracks, read_video(demo_dir / "video.mp4")[0], port=free_port())
+    ctrl, v = demo_viewer(demo_dir, tmp_path / "s", chains=2, seed=4, sweeps=0, target=3)
     try:
         v.follow_map.value = False
         ctrl.run_sweeps(3)

@@ -296,13 +296,9 @@ def test_the_traces_show_every_sweep_while_the_chains_run(demo_dir, tmp_path, br
     every sweep (x from 1 to the last) and every trace's values (the best, 0, included). It had
     drifted to an x range of [0, 1] (one column of dots at x = 1) and an asinh y range cut at
     -10 that hid every chain near the best."""
-    from galileo.video import read_video
-    from ui.controller import Controller
-    from ui.viewer import Viewer
+    from conftest import demo_viewer
 
-    scene, tracks, _ = load_demo_frozen()
-    ctrl = Controller(scene, tracks, chains=8, seed=3, workers=1, sweeps=400, session_dir=tmp_path / "s")
-    v = Viewer(ctrl, ctrl.likelihood_scene, tracks, read_video(demo_dir / "video.mp4")[0], port=free_port())
+    ctrl, v = demo_viewer(demo_dir, tmp_path / "s", chains=8, seed=3, sweeps=0, target=400)
     page = open_page(browser, v, {"width": 1024, "height": 768})
     try:
         seen = set()
@@ -329,14 +325,9 @@ def test_a_prior_edit_that_leaves_every_chain_out_says_so_and_restarts_them_insi
     video's k1): the page says in orange how many chains were left out and where, and offers
     to restart them; the MAP is no longer the sample outside the new prior; the histograms
     hold only draws inside it; Restart puts every chain inside it, each with a set_chain event."""
-    from galileo.video import read_video
-    from ui.controller import Controller
-    from ui.viewer import Viewer
+    from conftest import demo_viewer
 
-    scene, tracks, _ = load_demo_frozen()
-    ctrl = Controller(scene, tracks, chains=3, seed=2, workers=1, session_dir=tmp_path / "s", sweeps=12)
-    ctrl.run_sweeps(12)
-    v = Viewer(ctrl, ctrl.likelihood_scene, tracks, read_video(demo_dir / "video.mp4")[0], port=free_port())
+    ctrl, v = demo_viewer(demo_dir, tmp_path / "s", chains=3, seed=2, sweeps=12, target=12)
     page = open_page(browser, v, {"width": 1024, "height": 768})
     try:
         k1 = {c: ctrl.position(c)["k1"] for c in ctrl.chain_ids()}
