@@ -5,6 +5,7 @@ H.264, so all video I/O goes through PyAV.
 """
 from __future__ import annotations
 
+import itertools
 import operator
 import os
 import threading
@@ -91,7 +92,39 @@ def read_frames(path: str | os.PathLike, fmt: str = "rgb24") -> Iterator[np.ndar
         yield frame.to_ndarray(format=fmt)
 
 
-def _rate(stream) -> float | None:
+RATE_PACKETS = 300    # packets whose time stamps give the rate when the container's two figures disagree
+RATE_AGREE = 1e-3     # ... by more than this fraction
+
+
+def _rate(box, stream) -> float | None:
+    """The stream's frame rate. Where the container's average (frames over duration) and
+    FFmpeg's guess (what ffprobe calls r_frame_rate) agree, that; where they do not, the
+    frames per second that the first RATE_PACKETS packets' time stamps span (read without
+    decoding).
+    The average is wrong for a container whose stated duration or frame count its frames do
+    not fill (a real Physics 101 clip states 201 frames in 5.88 s, 29.70 fps, and its 176
+    decodable frames are stamped exactly 1/30 s apart), and the guess for a variable frame
+    rate (it becomes a multiple of the true rate). Leaves `box` positioned after those
+    packets: call it on a container opened for it."""
+    if _agreed(stream):
+        return float(stream.average_rate)
+    pts = [pk.pts for pk in itertools.islice(box.demux(stream), RATE_PACKETS) if pk.pts is not None]
+    return _rate_of(stream, sorted(pts))
+
+
+def _agreed(stream) -> bool:
+    avg, guess = stream.average_rate, stream.guessed_rate
+    return bool(avg and guess and abs(float(avg) / float(guess) - 1) <= RATE_AGREE)
+
+
+def _rate_of(stream, pts: list) -> float | None:
+    """`_rate` given the stream's first packets' time stamps, in order."""
+    if _agreed(stream):
+        return float(stream.average_rate)
+    if len(pts) >= 3 and stream.time_base:
+        step = float((pts[-1] - pts[0]) * stream.time_base) / (len(pts) - 1)   # (stamps rounded to a coarse
+        if step > 0:                                                          # time base: not their median)
+            return 1.0 / step
     rate = stream.average_rate or stream.guessed_rate
     return float(rate) if rate else None
 
@@ -102,7 +135,7 @@ def _stream_info(path: str | os.PathLike) -> tuple[float, int, int]:
     box = _open(path)
     try:
         stream = box.streams.video[0]
-        rate = _rate(stream)
+        rate = _rate(box, stream)
         return (rate if rate else 30.0), int(stream.codec_context.width), int(stream.codec_context.height)
     finally:
         box.close()
@@ -139,7 +172,7 @@ def check_stream(path: str | os.PathLike, camera) -> None:
     box = _open(path)
     try:
         stream = box.streams.video[0]
-        rate = _rate(stream)
+        rate = _rate(box, stream)
         size = (int(stream.codec_context.width), int(stream.codec_context.height))
     finally:
         box.close()
@@ -333,7 +366,7 @@ class VideoFrames:
         self.width_px, self.height_px = max(1, round(w * scale)), max(1, round(h * scale))
         self._resize = {} if scale == 1.0 else {"width": self.width_px, "height": self.height_px,
                                                  "interpolation": "AREA"}
-        self.fps = _rate(stream) or 30.0
+        self.fps = _rate_of(stream, (self._pts or [])[:RATE_PACKETS]) or 30.0
         self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
         self._cache_bytes, self._cached_bytes = cache_bytes, 0
         self._lock = threading.Lock()

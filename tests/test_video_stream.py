@@ -9,6 +9,7 @@ import math
 import threading
 import tracemalloc
 from fractions import Fraction
+from pathlib import Path
 
 import av
 import numpy as np
@@ -264,3 +265,22 @@ def test_the_viewers_frames_are_shrunk_to_the_display_and_the_cache_is_bounded(k
     finally:
         tracemalloc.stop()
     assert peak < 30 * 64 * 48 * 3     # the cache's 10 frames and what one decode passes, not 150
+
+
+PHYS101 = Path(__file__).resolve().parents[2] / "shared" / "data" / "phys101"
+
+
+@pytest.mark.skipif(not (PHYS101 / "spring").is_dir(), reason="the real Physics 101 clips are not here")
+def test_a_real_clip_whose_container_misstates_its_rate_is_timed_by_its_frames():
+    """A real Physics 101 clip (Kinect, 1920x1080): its container states 201 frames in 5.88 s,
+    an average of 29.70 fps, while its 176 decodable frames are stamped exactly 1/30 s apart.
+    Its rate is 30 fps (the stamps'), and it is not taken for a variable-frame-rate video."""
+    from galileo.video import _stream_info
+
+    clip = PHYS101 / "spring" / "w_block_05-loose-02-Kinect_RGB_1.mp4"
+    fps, w, h = _stream_info(clip)
+    assert (fps, w, h) == (30.0, 1920, 1080)
+    video = VideoStream(clip)
+    assert sum(1 for _ in video.yuv()) == 176
+    np.testing.assert_allclose(np.diff(video.times_s), 1 / 30, atol=1e-6)
+    assert video.timing_note() is None
