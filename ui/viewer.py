@@ -978,7 +978,9 @@ class Viewer:
         self._selection_listeners.append(fn)
 
     def jump_to_map(self) -> None:
-        with self._lock:      # the dropdown, the slider and the sample text agree
+        # the dropdown, the slider and the sample text change together: one batch of messages
+        # (a busy page drew the new chain beside the old sample's text between two batches)
+        with self._lock, self.server.atomic():
             m = self.ctrl.map()
             if m is None:
                 return
