@@ -20,6 +20,7 @@ is said at once; the session is then saved in a new folder beside it (see ui/con
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import threading
 from dataclasses import dataclass
@@ -39,22 +40,40 @@ class Demo:
     name: str
 
 
-DEMOS = {
-    "ramp": Demo("ramp", DEMO_DIR, "demo"),
-    "splash": Demo("splash", ROOT / ".cache" / "demo-splash", "splash-demo"),
-}
+DEMO_PRESET = "demo"   # a scenario has a built-in demo when its dataset has this preset
 
 
-def ensure_demo(progress: bool = True, scenario: str = "ramp") -> Path:
+def _demos() -> dict[str, Demo]:
+    """Every registered scenario whose dataset has a demo preset. The default scenario's demo is
+    cached in .cache/demo/ and recorded as session "demo"; another's in .cache/demo-<name>/ and
+    "<name>-demo"."""
+    from galileo import registry
+
+    return {n: Demo(n, DEMO_DIR, "demo") if n == registry.DEFAULT else
+            Demo(n, ROOT / ".cache" / f"demo-{n}", f"{n}-demo")
+            for n in registry.with_capability("dataset") if DEMO_PRESET in registry.get(n).dataset.presets}
+
+
+DEMOS = _demos()
+
+
+def _calibrated() -> list[str]:
+    """The scenarios whose own videos the upload page calibrates (`Scenario.calibration`)."""
+    from galileo import registry
+
+    return registry.with_capability("calibration")
+
+
+def ensure_demo(progress: bool = True, scenario: str | None = None) -> Path:
     """Render a built-in demo video on first run and cache it (with its scene) under its
-    cache folder (.cache/demo/ for the ramp, .cache/demo-splash/ for the splash)."""
-    import importlib
+    cache folder (`_demos`)."""
+    from galileo import registry
+    from galileo.dataset import build
 
-    demo = DEMOS[scenario]
-    build = importlib.import_module(f"galileo.scenarios.{demo.scenario}.dataset").build
-    folder = demo.cache / "demo"
+    demo = DEMOS[scenario or registry.DEFAULT]
+    folder = demo.cache / DEMO_PRESET
     if not (folder / "video.mp4").exists() or not (folder / "scene.json").exists():
-        build("demo", demo.cache, seed=0, workers=1, progress=progress)
+        build(registry.get(demo.scenario).dataset, DEMO_PRESET, demo.cache, seed=0, workers=1, progress=progress)
     return folder
 
 
@@ -68,14 +87,22 @@ def parse_args(argv=None) -> argparse.Namespace:
         error_name = "app"
 
     p = AppParser(description="Galileo: watch and steer physical inference from video")
-    p.add_argument("--video", help="video file (with --scene); default: the built-in demo")
-    p.add_argument("--scene", help="scene JSON whose camera describes the video")
+    p.add_argument("--video", nargs="+", help="video file (with --scene); several: one problem over them (see "
+                   "--share, --fix); default: the built-in demo")
+    p.add_argument("--scene", nargs="+", help="scene JSON whose camera describes the video (one per video, in order)")
+    p.add_argument("--share", nargs="+", metavar="LATENT",
+                   help="with several videos: latents with one value for all (the others are per video, LATENT@1, "
+                        "LATENT@2, ...)")
+    p.add_argument("--fix", action="append", metavar="NAME=VALUE",
+                   help="fix a latent at a known value (NAME in every video, NAME@2 in video 2 only; repeatable)")
     p.add_argument("--session", help="reopen a recorded session folder")
     p.add_argument("--upload", action="store_true",
-                   help="upload your own video in the browser, click the ramp's four points on its first frame and "
-                        "start inference there (a new session; see ui/calibrate.py)")
-    p.add_argument("--scenario", choices=sorted(DEMOS), default="ramp",
-                   help="which built-in demo to run without --video/--scene (default ramp)")
+                   help="upload your own video in the browser, click the points its scenario asks for (the ramp's "
+                        "four corners, the splash tank's) on its first frame and start inference there (a new "
+                        "session; see ui/calibrate.py)")
+    p.add_argument("--scenario", choices=sorted(set(DEMOS) | set(_calibrated())), default=None,
+                   help=f"which built-in demo to run without --video/--scene ({', '.join(sorted(DEMOS))}; default "
+                        "ramp), or, with --upload, the scenario the page opens on")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     p.add_argument("--port", type=port_int, default=8080, help="port to serve on, 1-65535 (default 8080)")
     p.add_argument("--rerun", nargs="+", default=["save"], metavar="MODE",
@@ -107,8 +134,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "first frame (Galileo Fig. 4)")
     p.add_argument("--model", help="recognition model for --init recognition (default: the built-in ramp model)")
     args = p.parse_args(argv)
-    if args.upload and (args.video or args.scene or args.session):
-        p.error("--upload brings the video and its scene from the browser: not with --video, --scene or --session")
+    if args.upload and (args.video or args.scene or args.session or args.share or args.fix):
+        p.error("--upload brings the video and its scene from the browser: not with --video, --scene, --session, "
+                "--share or --fix")
     if args.until_rhat is not None and not args.until_rhat > 1.0:
         p.error(f"--until-rhat must be above 1 (e.g. 1.01), got {args.until_rhat:g}")
     if args.max_sweeps is not None:
@@ -124,10 +152,23 @@ def parse_args(argv=None) -> argparse.Namespace:
         _rerun_mode(args)
     except GalileoError as e:
         p.error(str(e))
-    if args.chains is None:
-        from galileo import registry
+    from galileo import registry
 
-        args.chains = registry.get(args.scenario).protocol["chains"]
+    if args.upload:
+        if args.scenario is not None and args.scenario not in _calibrated():
+            p.error(f"--scenario {args.scenario}: the upload page calibrates {', '.join(_calibrated())}")
+    elif not (args.video or args.session):
+        args.scenario = args.scenario or registry.DEFAULT
+        if args.scenario not in DEMOS:
+            p.error(f"--scenario {args.scenario} has no built-in demo; these do: {', '.join(sorted(DEMOS))}")
+    if args.chains is None:   # the protocol of the scenario the run is of
+        name = args.scenario or registry.DEFAULT
+        if args.scene:
+            try:
+                name = registry.name_in(json.loads(Path(args.scene[0]).read_text()))
+            except (OSError, ValueError, GalileoError):
+                pass    # (the file is checked, with its own message, before anything starts)
+        args.chains = registry.get(name).protocol["chains"] if name in registry.names() else 16
     return args
 
 
@@ -180,8 +221,8 @@ def check_inputs(args) -> None:
     if args.rerun and args.rerun[0] == "web":
         for flag in ("--rerun-web-port", "--rerun-grpc-port"):
             port_is_free(args.host, getattr(args, flag[2:].replace("-", "_")), flag)
-    for flag, path, kind in (("--video", args.video, "file"), ("--scene", args.scene, "file"),
-                             ("--model", args.model, "file"), ("--session", args.session, "folder")):
+    paths = [("--video", v, "file") for v in args.video or ()] + [("--scene", v, "file") for v in args.scene or ()]
+    for flag, path, kind in paths + [("--model", args.model, "file"), ("--session", args.session, "folder")]:
         if path is None:
             continue
         p = Path(path)
@@ -193,10 +234,13 @@ def check_inputs(args) -> None:
             raise GalileoError(f"{flag}: {path} is not a session folder")
     if args.session and not (Path(args.session) / VIDEO_FILE).is_file():
         raise GalileoError(f"session {args.session} has no {VIDEO_FILE}")
-    if args.scene:
+    if args.video and args.scene and len(args.video) != len(args.scene):
+        raise GalileoError(f"{len(args.video)} video(s) need {len(args.video)} scene file(s), one --scene per "
+                           f"--video; got {len(args.scene)}")
+    for scene in args.scene or ():
         from galileo import registry
 
-        registry.load_scene(args.scene)
+        registry.load_scene(scene)
 
 
 def port_is_free(host: str, port: int, flag: str = "--port") -> None:
@@ -240,28 +284,42 @@ def port_is_free(host: str, port: int, flag: str = "--port") -> None:
                            "only) or 0.0.0.0 (every interface)")
 
 
-def new_session(args, video_path: Path, scene_path: Path, name: str, model=None, say=print):
-    """Track the video with the scene and make a new session folder, locked from its creation,
-    with the video copied into it: (session, scene, tracks, the chains' recognition init or
-    None, the session's lock). `say` reports progress."""
+def new_session(args, video_path, scene_path, name: str, model=None, say=print):
+    """Track the video with the scene (or each of several videos with its scene: one problem,
+    `--share`, `--fix`) and make a new session folder, locked from its creation, with the
+    videos copied into it: (session, scene, tracks, the chains' recognition init or None, the
+    session's lock). `say` reports progress."""
     import shutil
 
     from galileo import registry
-    from ui.session import VIDEO_FILE, SessionLock, new_session_dir
+    from galileo.cli import fixed_arg
+    from galileo.errors import GalileoError
+    from ui.session import SessionLock, new_session_dir, video_file
 
-    scene = registry.load_scene(scene_path)
-    say(f"tracking {video_path} ...")
-    tracks = registry.of(scene).track(video_path, scene)
+    videos = [Path(video_path)] if isinstance(video_path, (str, Path)) else [Path(v) for v in video_path]
+    scene_paths = [scene_path] if isinstance(scene_path, (str, Path)) else list(scene_path)
+    if getattr(args, "share", None) and len(videos) == 1:
+        raise GalileoError("--share is for several videos (one value of a latent for all of them)")
+    scenes = [registry.load_scene(p) for p in scene_paths]
+    scene = registry.problem(scenes, getattr(args, "share", None) or (), fixed_arg(getattr(args, "fix", None)))
+    if len(videos) > 1 and model is not None:
+        raise GalileoError("--init recognition reads one video: for several, chains start from the prior")
+    registry.of(scene).latents(scene)    # a bad --share or --fix fails here, before tracking
+    tracks = []
+    for v, s in zip(videos, scenes):
+        say(f"tracking {v} ...")
+        tracks.append(registry.of(s).track(v, s))
     session = new_session_dir(SESSIONS, name)
     lock = SessionLock(session)
-    shutil.copyfile(video_path, session / VIDEO_FILE)
+    for i, v in enumerate(videos):
+        shutil.copyfile(v, session / video_file(i))
     # (the controller writes scene.json and tracks.json into the session; bounds: the priors')
     init = None
     if model is not None:
         from galileo.recognition.model import recognition_init
 
-        init = recognition_init(model, video_path, scene, tracks, source=str(args.model or "built-in"))
-    return session, scene, tracks, init, lock
+        init = recognition_init(model, videos[0], scene, tracks[0], source=str(args.model or "built-in"))
+    return session, scene, tracks if len(tracks) > 1 else tracks[0], init, lock
 
 
 def start_chains(args, session: Path, scene, tracks, init=None, lock=None):
@@ -286,7 +344,7 @@ def run(args) -> int:
     from galileo import registry
     from galileo.results import MIN_ESS
     from ui.controller import Controller
-    from ui.session import VIDEO_FILE
+    from ui.session import VIDEO_FILE, video_files
 
     mode, url = _rerun_mode(args)
     port_is_free(args.host, args.port)     # before tracking and the chains, which take a while
@@ -301,7 +359,7 @@ def run(args) -> int:
     if args.init == "recognition":   # before tracking: a bad model file fails fast
         from galileo.recognition.model import load_model
 
-        model = load_model(args.model, registry.load_scene(args.scene).scenario if args.scene else args.scenario)
+        model = load_model(args.model, registry.load_scene(args.scene[0]).scenario if args.scene else args.scenario)
     if args.session:
         session = Path(args.session)
         # its chains wait for Resume (those that were running when it was saved too)
@@ -313,7 +371,11 @@ def run(args) -> int:
             ctrl.close()
             raise GalileoError(str(e)) from None
         scene, tracks = ctrl.scene, ctrl.tracks
-        video_path = session / VIDEO_FILE
+        video_path = [session / name for name in video_files(session)]
+        n_videos = len(tracks) if isinstance(tracks, (list, tuple)) else 1
+        if len(video_path) != n_videos:
+            ctrl.close()
+            raise GalileoError(f"session {session} holds {len(video_path)} video(s) but its problem has {n_videos}")
     elif args.upload:   # the browser brings the video and its scene, then as --video --scene
         from ui.calibrate import calibrate_in_browser
 
@@ -321,18 +383,18 @@ def run(args) -> int:
         # the page's server has stopped (none of its threads or its socket in them)
         session, scene, tracks, init, lock = calibrate_in_browser(
             args.host, args.port, SESSIONS, lambda v, s, n, say: new_session(args, v, s, n, model, say),
-            name=args.name)
+            name=args.name, scenario=args.scenario)
         ctrl = start_chains(args, session, scene, tracks, init, lock)
-        video_path = session / VIDEO_FILE
+        video_path = [session / VIDEO_FILE]
     else:
         if bool(args.video) != bool(args.scene):
             raise GalileoError("give both --video and --scene (or neither, for the demo)")
         if args.video:
-            video_path, scene_path = Path(args.video), Path(args.scene)
-            name = args.name or video_path.stem
+            video_path, scene_path = [Path(v) for v in args.video], [Path(s) for s in args.scene]
+            name = args.name or video_path[0].stem
         else:
             folder = ensure_demo(scenario=args.scenario)
-            video_path, scene_path = folder / "video.mp4", folder / "scene.json"
+            video_path, scene_path = [folder / "video.mp4"], [folder / "scene.json"]
             name = args.name or DEMOS[args.scenario].name
         session, scene, tracks, init, lock = new_session(args, video_path, scene_path, name, model)
         ctrl = start_chains(args, session, scene, tracks, init, lock)
@@ -343,7 +405,7 @@ def run(args) -> int:
         raise
 
 
-def serve(args, ctrl, session: Path, tracks, video_path: Path, mode: str, url: str | None) -> int:
+def serve(args, ctrl, session: Path, tracks, video_path: list[Path], mode: str, url: str | None) -> int:
     """Log to rerun, serve the viewer and run the chains until Ctrl-C (or SIGTERM); then stop,
     save and say where the session is saved (exit code 1, saying so, when it could not be)."""
     import sys
@@ -353,7 +415,10 @@ def serve(args, ctrl, session: Path, tracks, video_path: Path, mode: str, url: s
     from ui.rerun_log import RRD_NAME, ControllerFeed, RerunLogger
     from ui.viewer import Viewer
 
-    video = VideoFrames(video_path)     # decoded frame by frame as the viewer shows them, never all held
+    # decoded frame by frame as the viewer shows them, never all held (one per video of the problem)
+    videos = [VideoFrames(p) for p in video_path]
+    video = videos if len(videos) > 1 else videos[0]
+    first_tracks = tracks[0] if isinstance(tracks, (list, tuple)) else tracks
     old_rrd = session / RRD_NAME
     if mode != "off" and old_rrd.exists():  # keep the earlier run's recording
         import time as _time
@@ -366,7 +431,7 @@ def serve(args, ctrl, session: Path, tracks, video_path: Path, mode: str, url: s
                              latents=list(ctrl.names), n_chains=len(ctrl.all_chain_ids()))
     except RuntimeError as e:
         raise GalileoError(f"rerun: {e}") from None
-    logger.log_video(video_path, tracks, tracks.fps)
+    logger.log_video(video_path[0], first_tracks, first_tracks.fps)   # rerun shows the first video
     # traces, posterior and R-hat every len(chains) rounds, events, the MAP's motion (its own thread)
     feed = ControllerFeed(logger, ctrl)
     if args.session:   # the new session.rrd continues the old one: every chain's sweeps from 1, events, R-hat

@@ -440,9 +440,10 @@ def run_jobs(client, jobs: list[Job], store: RecordStore, *, granularity: str = 
 def experiment_jobs(folder: Path, scenario: str, entries: list[dict], config,
                     missing: dict[str, str] | None = None) -> list[Job]:
     """One job per video; those in `missing` (`missing_videos`) carry their error, not run."""
-    fn = registry.get(scenario).optional_part("experiments", "run_video")
-    if fn is None:
+    exp = registry.get(scenario).experiments
+    if exp is None:
         raise GalileoError(f"scenario {scenario!r} has no experiments")
+    fn = exp.run_video
     conf = config_json(config)
     missing = missing or {}
     jobs = []
@@ -485,8 +486,7 @@ def run_experiments(folder: str | Path, config, out: str | Path, client, *, gran
     store = RecordStore(out / "records")
     jobs = experiment_jobs(folder, scenario, entries, config, missing)
     done = run_jobs(client, jobs, store, granularity=granularity, progress=progress)
-    summarise = registry.get(scenario).optional_part("experiments", "summarise")
-    summary = summarise(done.records)
+    summary = registry.get(scenario).experiments.summarise(done.records)
     meta = {"scenario": scenario, "dataset": str(folder), "videos": len(entries), "config": config_json(config),
             "granularity": granularity}
     report = {**meta, "summary": summary,

@@ -5,9 +5,9 @@ rendered dataset with ground truth.
 SBC, simulation i = 0..n-1 (each its own task; a worker runs one `infer` with workers=1):
 
 1. a scene: the scenario's default scene, a fixed one, or (`scenes="dataset"`) a random
-   scene like its dataset's (the scenario package's `synthetic.random_scene(rng)`);
+   scene like its dataset's (the scenario's `synthetic.random_scene(rng)`);
 2. the truth theta_i drawn from the prior: uniform on the scene's prior bounds;
-3. observations y_i = `Scenario.synthetic_tracks(scene, theta_i, rng, noise)`: what the
+3. observations y_i = `Scenario.synthetic.tracks(scene, theta_i, rng, noise)`: what the
    likelihood assumes (for the ramp: its own simulated motion plus iid noise of the scene's
    observation model, Gaussian or Student-t, on each velocity component), no rendering or
    tracking; the scene is the one the move set infers on (`runner.scene_for_moves`);
@@ -197,8 +197,11 @@ def thin(kept: np.ndarray, n_draws: int) -> np.ndarray:
 def quantities(scenario, scene, names, rows: np.ndarray) -> dict[str, np.ndarray]:
     """Per quantity, its value in each row of latent values (rows: (N, D)): the latents, then
     the scenario's derived quantities that every row has (a positive one as its log,
-    `log_<name>`, as `InferenceResult.derived_posterior` reports it)."""
+    `log_<name>`, as `InferenceResult.derived_posterior` reports it). A derived quantity that
+    stays the same while the rows vary (the splash's volume: the scene's, not inferred) is no
+    posterior and is left out."""
     out = {n: rows[:, j].astype(float) for j, n in enumerate(names)}
+    rows_vary = len(rows) > 1 and bool(np.ptp(rows, axis=0).max() > 0)
     derived: dict[str, list] = {}
     for row in rows:
         for k, v in scenario.derived(scene, dict(zip(names, map(float, row)))).items():
@@ -207,7 +210,7 @@ def quantities(scenario, scene, names, rows: np.ndarray) -> dict[str, np.ndarray
         if len(vals) != len(rows) or any(v is None for v in vals):
             continue
         x = np.asarray(vals, float)
-        if not np.all(np.isfinite(x)):
+        if not np.all(np.isfinite(x)) or (rows_vary and np.ptp(x) == 0):
             continue
         if np.all(x > 0):
             out[f"log_{k}"] = np.log(x)
@@ -235,11 +238,6 @@ def _run_all(fn, tasks: list, workers, desc: str, unit: str, progress: bool) -> 
     return out, getattr(executor, "workers", 1)
 
 
-def _scene_part(scenario, name: str):
-    """A function of the scenario package's `synthetic` module, if it has one."""
-    return scenario.optional_part("synthetic", name)
-
-
 def draw_simulation(scenario, i: int, seed: int, scenes: str = "default", scene=None,
                     moves: str = "default") -> tuple:
     """(scene with the true values set, truth {latent: value}) of simulation i (seeded). The
@@ -251,7 +249,7 @@ def draw_simulation(scenario, i: int, seed: int, scenes: str = "default", scene=
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(i,)))
     if scene is None:
         if scenes == "dataset":
-            fn = _scene_part(scenario, "random_scene")
+            fn = scenario.synthetic.random_scene if scenario.synthetic else None
             if fn is None:
                 raise GalileoError(f"the {scenario.name} scenario cannot draw random scenes (--scenes dataset)")
             scene = fn(rng)
@@ -276,11 +274,10 @@ def run_simulation(task: dict) -> dict:
     truth = task["truth"]
     rng = np.random.default_rng(np.random.SeedSequence(task["seed"], spawn_key=(task["index"], 1)))
     out = {"index": task["index"], "truth": truth}
-    describe = _scene_part(scenario, "describe")
-    if describe is not None:
-        out["scene"] = describe(scene)
+    if scenario.synthetic.describe is not None:
+        out["scene"] = scenario.synthetic.describe(scene)
     try:
-        tracks = scenario.synthetic_tracks(scene, truth, rng, task["noise"])
+        tracks = scenario.synthetic.tracks(scene, truth, rng, task["noise"])
         if getattr(tracks, "notes", None):
             out["observations"] = "; ".join(tracks.notes)   # what was simulated (e.g. the noise model)
         t1 = time.perf_counter()
@@ -343,11 +340,9 @@ def sbc(scenario_name: str, n: int, out_dir, *, seed: int = 0, chains: int = DEF
     `noise`: the scale (SD) of the simulated observation noise (default: the scenario's likelihood
     noise); `infer_noise`: the likelihood's noise during inference (default: the same;
     another value makes a deliberately wrong posterior, for negative controls)."""
-    from .model import Scenario
-
     scenario = registry.get(scenario_name)
-    if type(scenario).synthetic_tracks is Scenario.synthetic_tracks:
-        raise GalileoError(f"the {scenario.name} scenario cannot simulate observations (no synthetic_tracks): "
+    if scenario.synthetic is None:
+        raise GalileoError(f"the {scenario.name} scenario cannot simulate observations: "
                            "no simulation-based calibration for it")
     if isinstance(n, bool) or int(n) != n or n < 1:
         raise GalileoError(f"n must be an integer >= 1 (simulations), got {n!r}")
@@ -546,7 +541,7 @@ def _video_task(task: dict) -> dict:
         truth = read_json(folder / "truth.json", "truth file").get("latents", {})
         scene = registry.load_scene(folder / "scene.json")
         scenario = registry.of(scene)
-        tracks = tracks_for(Example(folder.name, folder, folder.name, "", "ramp"), scene)
+        tracks = tracks_for(Example(folder.name, folder, folder.name, "", ""), scene)
         if tracks is None:
             return {**out, "error": "the tracker sees nothing move"}
         t1 = time.perf_counter()
@@ -556,15 +551,15 @@ def _video_task(task: dict) -> dict:
     names = list(result.names)
     flat = result.kept().reshape(-1, len(names))
     q_all = quantities(scenario, result.scene, names, flat)
-    q_true = {}
-    if "k1" in truth:
-        q_true["k1"] = float(truth["k1"])
-    if "m1_kg" in truth and truth.get("m2_kg"):
-        q_true["log_mass_ratio"] = math.log(float(truth["m1_kg"]) / float(truth["m2_kg"]))
+    known = {n: float(truth[n]) for n in names if isinstance(truth.get(n), (int, float))}
+    q_true = {n: np.array([v]) for n, v in known.items()}
+    if len(known) == len(names):   # derived quantities need every latent's truth
+        q_true = quantities(scenario, result.scene, names, np.array([[known[n] for n in names]]))
     checks = {}
-    for k, t in q_true.items():
-        if k not in q_all:
+    for k in scenario.experiments.coverage:
+        if k not in q_all or k not in q_true:
             continue
+        t = float(q_true[k][0])
         qs = np.quantile(q_all[k], [0.05, 0.25, 0.5, 0.75, 0.95])
         checks[k] = {"truth": t, "q05": float(qs[0]), "q25": float(qs[1]), "q50": float(qs[2]), "q75": float(qs[3]),
                      "q95": float(qs[4]), "inside": {"0.5": bool(qs[1] <= t <= qs[3]), "0.9": bool(qs[0] <= t <= qs[4])}}
@@ -587,8 +582,10 @@ def coverage_on_videos(dataset_dir, out_dir, *, seed: int = 0, chains: int = DEF
     if not isinstance(index, dict) or not isinstance(index.get("videos"), list):
         raise GalileoError(f"{dataset_dir} is not a dataset folder (no index.json listing videos; make one with "
                            "`galileo dataset`)")
-    if index.get("scenario", registry.DEFAULT) != "ramp":
-        raise GalileoError(f"{dataset_dir}: coverage on videos is for ramp datasets, got {index.get('scenario')!r}")
+    name = index.get("scenario", registry.DEFAULT)
+    scenario = registry.get(name)
+    if scenario.experiments is None or not scenario.experiments.coverage:
+        raise GalileoError(f"{dataset_dir}: the {name} scenario names no quantities to check coverage of on videos")
     cfg = _config(chains, sweeps, moves, until_rhat, max_sweeps, min_ess, None)
     names = [v["name"] for v in index["videos"] if isinstance(v, dict) and "name" in v]
     tasks = [{"folder": str(dataset_dir / name), "config": cfg, "seed": int(seed)} for name in names]
@@ -597,7 +594,7 @@ def coverage_on_videos(dataset_dir, out_dir, *, seed: int = 0, chains: int = DEF
     t0 = time.perf_counter()
     videos, n_workers = _run_all(_video_task, tasks, workers, "videos", "video", progress)
     per = {}
-    for k in ("k1", "log_mass_ratio"):
+    for k in scenario.experiments.coverage:
         rows = [v for v in videos if k in v.get("quantities", {})]
         per[k] = {str(a): coverage_summary([v["quantities"][k]["inside"][str(a)] for v in rows]) for a in INTERVALS}
     done = [v for v in videos if "error" not in v]
@@ -627,14 +624,15 @@ def coverage_markdown(report: dict) -> str:
     lines += ["", f"converged: {'n/a' if conv is None else f'{conv:.0%}'} of the videos"]
     for f in report["failed"]:
         lines.append(f"* failed: {f['name']}: {f['error']}")
-    lines += ["", "| video | k1 truth | k1 90% interval | log(m1/m2) truth | log(m1/m2) 90% interval | converged |",
-              "|---|---|---|---|---|---|"]
+    keys = list(report["coverage"])
+    lines += ["", "| video | " + " | ".join(f"{k} truth | {k} 90% interval" for k in keys) + " | converged |",
+              "|---|" + "---|---|" * len(keys) + "---|"]
     for v in report["videos"]:
         if "error" in v:
             continue
         q = v["quantities"]
         cells = []
-        for k in ("k1", "log_mass_ratio"):
+        for k in keys:
             if k in q:
                 mark = "" if q[k]["inside"]["0.9"] else " **out**"
                 cells += [f"{q[k]['truth']:.3f}", f"{q[k]['q05']:.3f}-{q[k]['q95']:.3f}{mark}"]

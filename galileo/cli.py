@@ -265,17 +265,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from . import registry
 
     if args.scene:
-        quick = [f for f in ("angle_deg", "friction", "mass", "target") if getattr(args, f) is not None]
-        if quick:
-            raise GalileoError(f"--{quick[0].replace('_', '-')} is for the quick form; with --scene use --set")
+        if args.scenario is not None:
+            raise GalileoError("--scenario is for the scenario's default scene; a scene file names its own")
         scene = registry.load_scene(args.scene)
-    else:  # the quick form: the ramp's standard geometry
-        from .scenarios.ramp.scene import default_scene
-
-        scene = default_scene(args.angle_deg if args.angle_deg is not None else 20.0,
-                              mass_kg=args.mass if args.mass is not None else 0.5,
-                              friction=args.friction if args.friction is not None else 0.2,
-                              target=args.target or "none")
+    else:  # the scenario's default scene, knobs from --set
+        scene = registry.get(args.scenario or registry.DEFAULT).default_scene()
     scenario = registry.of(scene)
     if args.frames is not None and args.duration_s is not None:
         raise GalileoError("give --frames or --duration-s, not both")
@@ -283,8 +277,6 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if values:
         scene = scenario.with_values(scene, values)
         scene = checked_scene(scenario, scene, f"--set {', '.join(args.set)}")
-    elif not args.scene:
-        scene = checked_scene(scenario, scene, "the quick form's scene (--angle-deg, --mass, --friction)")
     timing = scenario.video_timing(scene)   # (fps, n_frames) of the scene's video, if it says
     fps = args.fps if args.fps is not None else (timing[0] if timing else 30.0)
     if args.frames is not None:
@@ -311,12 +303,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_dataset(args: argparse.Namespace) -> int:
-    if args.scenario == "splash":
-        from .scenarios.splash.dataset import build
-    else:
-        from .scenarios.ramp.dataset import build
+    from . import registry
+    from .dataset import build
 
-    entries = build(args.preset, args.out, seed=args.seed, workers=args.workers, progress=not args.quiet)
+    spec = registry.get(args.scenario).dataset
+    if spec is None:
+        raise GalileoError(f"the {args.scenario} scenario renders no datasets; these do: "
+                           f"{', '.join(registry.with_capability('dataset'))}")
+    entries = build(spec, args.preset, args.out, seed=args.seed, workers=args.workers, progress=not args.quiet)
     print(f"wrote {len(entries)} video(s) to {args.out} (index: {Path(args.out) / 'index.json'})")
     return 0
 
@@ -337,22 +331,57 @@ def cmd_track(args: argparse.Namespace) -> int:
     return 0
 
 
+def fixed_arg(items: list[str] | None) -> dict[str, float]:
+    """--fix NAME=VALUE ... as {name: value} (one-line errors)."""
+    out = {}
+    for item in items or ():
+        name, sep, text = item.partition("=")
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not sep or not name.strip() or not math.isfinite(value):
+            raise GalileoError(f"--fix {item}: expected NAME=VALUE with a finite number (e.g. m1_kg=0.1103)")
+        out[name.strip()] = value
+    return out
+
+
 def cmd_infer(args: argparse.Namespace) -> int:
     from . import registry
     from .datatypes import Tracks
     from .results import warning_of
     from .runner import RunConfig, infer
 
-    if Path(args.video).is_dir():
+    videos = list(args.video)
+    if any(Path(v).is_dir() for v in videos):
+        if len(videos) > 1:
+            raise GalileoError("give one folder of videos, or video files (several: one problem over them)")
+        for flag, given in (("--scene", len(args.scene or ()) > 1), ("--share", args.share), ("--fix", args.fix)):
+            if given:
+                raise GalileoError(f"{flag} is for one problem of video files; a folder of videos takes at most one "
+                                   "--scene and no --share or --fix")
+        args.video, args.scene = videos[0], (args.scene or [None])[0]
         return infer_folder(args)
     out = Path(check_out_file(args.out, "result file"))   # before tracking and sampling, which take a while
     check_out_file(str(out.with_name(out.stem + ".samples.npz")), "samples file")
-    if args.scene is None:
+    if not args.scene:
         raise GalileoError("--scene is needed for a video (a folder of videos may instead hold one scene.json per "
                            "subfolder)")
+    if len(args.scene) != len(videos):
+        raise GalileoError(f"{len(videos)} video(s) need {len(videos)} scene file(s) (--scene A.json B.json ...), "
+                           f"got {len(args.scene)}")
+    if args.tracks and len(args.tracks) != len(videos):
+        raise GalileoError(f"--tracks: one tracks file per video ({len(videos)}), got {len(args.tracks)}")
     if args.scheduler or args.slurm or args.granularity:
         raise GalileoError("--scheduler, --slurm and --granularity are for a folder of videos")
-    scene = registry.load_scene(args.scene)
+    if args.share and len(videos) == 1:
+        raise GalileoError("--share is for several videos (one value of a latent for all of them)")
+    scenes = [registry.load_scene(p) for p in args.scene]
+    scene = registry.problem(scenes, args.share or (), fixed_arg(args.fix))
+    registry.of(scene).latents(scene)    # a bad --share or --fix fails here, before tracking
+    several = len(videos) > 1
+    if several and args.init == "recognition":
+        raise GalileoError("--init recognition reads one video: for several, chains start from the prior")
     scenario = registry.of(scene)
     protocol = scenario.protocol
     cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
@@ -376,18 +405,21 @@ def cmd_infer(args: argparse.Namespace) -> int:
         model = load_model(args.model, scenario.name)   # before tracking: a bad model file fails fast
     elif args.model:
         raise GalileoError("--model is for --init recognition")
-    if args.tracks:
-        tracks = Tracks.load(args.tracks)
-    else:
-        tracks = scenario.track(args.video, scene, progress=not args.quiet)
+    tracks = []
+    for v, (video, s) in enumerate(zip(videos, scenes)):
+        if args.tracks:
+            tracks.append(Tracks.load(args.tracks[v]))
+        else:
+            tracks.append(registry.of(s).track(video, s, progress=not args.quiet))
     init = None
     if model is not None:
         from .recognition.model import recognition_init
 
-        init = recognition_init(model, args.video, scene, tracks, args.recognition_move or 0,
+        init = recognition_init(model, videos[0], scene, tracks[0], args.recognition_move or 0,
                                 source=str(args.model or "built-in"))
-    result = infer(scene, tracks, cfg, progress=not args.quiet, init=init)
-    result.notes = tuple(getattr(tracks, "notes", ()) or ())
+    result = infer(scene, tracks if several else tracks[0], cfg, progress=not args.quiet, init=init)
+    result.notes = tuple(f"video {v + 1}: {n}" if several else n
+                         for v, t in enumerate(tracks) for n in (getattr(t, "notes", ()) or ()))
     doc = result.to_json()   # diagnostics and derived posteriors, computed once
     npz = result.save(args.out, doc)
     for note in result.notes:
@@ -496,6 +528,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
     import json
 
     from . import registry
+    from .joint import is_joint_json
     from .jsonio import write_json
     from .results import read_result_json
 
@@ -503,6 +536,9 @@ def cmd_predict(args: argparse.Namespace) -> int:
         raise GalileoError(f"--angle-deg must be in [0, 90), got {args.angle_deg:g}")
     d = read_result_json(args.result)       # a dict with a known scenario, or a one-line error
     scenario = registry.get(d.get("scenario", registry.DEFAULT))
+    if is_joint_json(d.get("scene")):
+        raise GalileoError(f"{args.result} is a result over several videos or with fixed latents: predict answers "
+                           "for one video's result with every latent inferred")
     out = scenario.predict(args.result, {"angle_deg": args.angle_deg, "target": args.target, "scene": args.scene})
     text = json.dumps(out, indent=1)
     if args.out:
@@ -521,7 +557,7 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     from .runner import RunConfig
 
     scenario, entries = batch.dataset_index(args.dataset)
-    if registry.get(scenario).optional_part("experiments", "run_video") is None:
+    if registry.get(scenario).experiments is None:
         raise GalileoError(f"{Path(args.dataset) / 'index.json'}: no experiments for scenario {scenario!r}")
     protocol = registry.get(scenario).protocol
     cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
@@ -582,72 +618,28 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_scene(args: argparse.Namespace) -> int:
-    """galileo scene: a ramp scene file from four points clicked on the video's first frame."""
-    import math
-
-    import numpy as np
-
-    from .scenarios.ramp.clicks import START_MAX_FRAMES, find_start_m, sample_frames, scene_from_clicks
-    from .video import read_frames
-
-    def numbers(text: str, n: int, what: str) -> list[float]:
-        try:
-            vals = [float(x) for x in text.replace(",", " ").split()]
-        except ValueError:
-            vals = []
-        if len(vals) != n or not all(math.isfinite(v) for v in vals):
-            raise GalileoError(f"{what}: expected {n} numbers, got {text!r}")
-        return vals
-
-    uv = numbers(args.ramp_px, 8, "--ramp-px (four points u,v: upper near, upper far, foot far, foot near)")
-    size_m = None if args.target_size_m is None else numbers(args.target_size_m, 3, "--target-size-m (x,y,z in metres)")
-    for flag, v in (("--ramp-length-m", args.ramp_length_m), ("--ramp-width-m", args.ramp_width_m),
-                    ("--upper-at-m", args.upper_at_m), ("--focal-px", args.focal_px), ("--start-m", args.start_m),
-                    ("--target-distance-m", args.target_distance_m)):
-        if v is not None and not (math.isfinite(v) and v > 0):
-            raise GalileoError(f"{flag} must be a positive number, got {v}")
-    if not (math.isfinite(args.angle_deg) and 0 < args.angle_deg < 60):
-        raise GalileoError(f"--angle-deg must be in (0, 60), got {args.angle_deg}")
-    if args.upper_at_m is not None and args.upper_at_m > args.ramp_length_m:
-        raise GalileoError(f"--upper-at-m {args.upper_at_m} is beyond the ramp's length {args.ramp_length_m}")
-    if size_m is not None and args.target == "none":
-        raise GalileoError("--target-size-m needs --target cardboard|foam")
-    # one pass over the video: its length and size, and (without --start-m) at most 60 frames
-    # evenly spaced, at most 640 px wide, to find the object's start in
-    frames, n_frames, size = sample_frames(read_frames(args.video), max_frames=0 if args.start_m is not None
-                                           else START_MAX_FRAMES)
-    if not n_frames:
-        raise GalileoError(f"video {args.video} has no decodable frames")
-    from .video import _stream_info
-
-    fps = _stream_info(args.video)[0]
-    common = dict(width_px=size[0], height_px=size[1], fps=fps, n_frames=n_frames, length_m=args.ramp_length_m,
-                  width_m=args.ramp_width_m, angle_deg=args.angle_deg, upper_at_m=args.upper_at_m,
-                  focal_px=args.focal_px, target=args.target, target_distance_m=args.target_distance_m,
-                  target_size_m=size_m)
-    clicks = np.array(uv).reshape(4, 2)
-    start_m = args.start_m
-    if start_m is None:
-        # the camera first (any start on the ramp will do for it), then the start it sees
-        scene, _ = scene_from_clicks(clicks, start_m=args.ramp_length_m / 2, **common)
-        start_m = find_start_m(frames, scene)
-        del frames
-    try:
-        scene, err = scene_from_clicks(clicks, start_m=start_m, **common)
-    except GalileoError as e:
-        if args.start_m is not None:
-            raise
-        raise GalileoError(f"{e} (the object was found in the first frame {start_m:.2f} m up the ramp): give "
-                           "--start-m, from the ramp's foot to the object's centre") from None
-    cam = scene.camera
-    scene.save(args.out)
-    print(f"wrote {args.out}: focal {cam.K[0, 0]:.1f} px{' (estimated)' if args.focal_px is None else ''}, camera "
-          f"{np.linalg.norm(cam.position_in_world):.2f} m from the ramp's foot, reprojection error {err:.2f} px")
-    if args.start_m is None:
-        print(f"object found in the first frame, {scene.start_distance_m():.2f} m up the ramp (give --start-m to "
-              "override)")
+    """galileo scene: a scene file for your own video, from points clicked on its first frame and
+    the numbers its scenario's calibration declares (`galileo.clicks`)."""
     from .camera import steps_per_frame
+    from .clicks import calibration_of, calibrations, parse_points, sample_video
 
+    cal = calibration_of(args.scenario)
+    mine = {f.name for f in cal.fields}
+    others = sorted({f.flag for c in calibrations().values() for f in c.fields if f.name not in mine
+                     and getattr(args, f.name, None) is not None})
+    if others:
+        raise GalileoError(f"{', '.join(others)}: not for --scenario {args.scenario} (its numbers: "
+                           f"{', '.join(f.flag for f in cal.fields)})")
+    numbers = {f.name: getattr(args, f.name) for f in cal.fields}
+    cal.values(numbers)       # every number checked before the video is read
+    clicks = parse_points(args.points, len(cal.points))
+    if len(clicks) != len(cal.points):
+        raise GalileoError(f"--points: give {len(cal.points)} points u,v (pixels): {cal.order}; got {len(clicks)}")
+    info, _, frames = sample_video(args.video)
+    scene, err = cal.solve(clicks, numbers, info, frames)
+    scene.save(args.out)
+    cam = scene.camera
+    print(f"wrote {args.out} ({args.scenario}): reprojection error {err:.2f} px; {cal.describe(scene, numbers)}")
     print(f"physics at {scene.sim_hz:.6g} Hz: {steps_per_frame(scene.sim_hz, cam.fps)} steps a frame at "
           f"{cam.fps:.4g} fps")
     return 0
@@ -800,6 +792,8 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
         return 0
     for d in described:
         print(f"{d['name']}: {d['description']}")
+        can = [k for k, v in d["capabilities"].items() if v]
+        print(f"  can    infer{''.join(', ' + k for k in can)}")
         noise = d["noise"]
         print(f"  noise  {noise['name']} = {noise['default']:g} {noise['unit']}")
         for lat in d["latents"]:
@@ -809,20 +803,29 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
     return 0
 
 
+def scenario_name(text: str) -> str:
+    """A registered scenario's name (argparse type: an unknown one is a usage error naming the known)."""
+    from . import registry
+
+    if text not in registry.names():
+        raise argparse.ArgumentTypeError(f"unknown scenario {text!r}; known: {', '.join(registry.names())}")
+    return text
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from . import registry
+
     p = Parser(prog="galileo", description="Physical object properties from video: "
                                 "Bullet simulations inside MCMC (Galileo, NIPS 2015).")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("simulate", help="simulate a scene and write its trajectory JSON")
-    s.add_argument("--scene", help="scene JSON (omit for the quick form below)")
+    s.add_argument("--scene", help="scene JSON (omit for the default scene of --scenario)")
+    s.add_argument("--scenario", type=scenario_name, metavar="NAME",
+                   help=f"without --scene: this scenario's default scene (default {registry.DEFAULT})")
     s.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="override a latent or another value of the scene (repeatable; `galileo scenarios` "
                         "lists each scenario's latents)")
-    s.add_argument("--angle-deg", type=finite_float, help="quick form: ramp angle (default 20)")
-    s.add_argument("--friction", type=nonneg_float, help="quick form: ramp object's friction (default 0.2)")
-    s.add_argument("--mass", type=positive_float, help="quick form: ramp object's mass in kg (default 0.5)")
-    s.add_argument("--target", choices=["none", "cardboard", "foam"], help="quick form: target (default none)")
     s.add_argument("--duration-s", type=positive_float,
                    help="simulated time (default: the scene's video length, else 2 s)")
     s.add_argument("--frames", type=frames_int, help=f"number of frames instead of --duration-s (at most {MAX_FRAMES})")
@@ -831,10 +834,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, type=out_file, help="trajectory JSON to write")
     s.set_defaults(func=cmd_simulate)
 
-    d = sub.add_parser("dataset", help="render Physics-101-style videos (ramp or splash) with ground truth")
-    d.add_argument("--scenario", choices=["ramp", "splash"], default="ramp",
-                   help="ramp (default) or splash: objects dropped into a tank of water")
-    d.add_argument("--preset", choices=["demo", "small", "full"], default="demo")
+    d = sub.add_parser("dataset", help="render Physics-101-style videos with ground truth")
+    d.add_argument("--scenario", type=scenario_name, default=registry.DEFAULT, metavar="NAME",
+                   help=f"whose videos (default {registry.DEFAULT}; `galileo scenarios` lists those with datasets)")
+    d.add_argument("--preset", default="demo", help="the scenario's preset: demo (default), small, full, ...")
     d.add_argument("--out", required=True, type=out_dir, help="output folder")
     d.add_argument("--seed", type=seed_int, default=0)
     d.add_argument("--workers", type=workers_int, default=None, help="render processes (default: all cores)")
@@ -852,10 +855,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser("infer", help="infer a scene's latents (masses, frictions, ...) from a video "
                                      "(MCMC over Bullet)")
-    i.add_argument("video", help="video file, or a folder of videos (run on Dask, one result file each in --out)")
-    i.add_argument("--scene", help="scene JSON describing the video (for the ramp: its camera); for a folder of "
-                   "videos, the one scene they were all filmed in (default: each subfolder's scene.json)")
-    i.add_argument("--tracks", help="tracks JSON from `galileo track` (default: track the video first)")
+    i.add_argument("video", nargs="+", help="video file; several: one problem over them (see --share, --fix); or a "
+                   "folder of videos (run on Dask, one result file each in --out)")
+    i.add_argument("--scene", nargs="+", help="scene JSON describing the video (for the ramp: its camera), one per "
+                   "video in the same order; for a folder of videos, the one scene they were all filmed in (default: "
+                   "each subfolder's scene.json)")
+    i.add_argument("--tracks", nargs="+", help="tracks JSON from `galileo track`, one per video (default: track "
+                   "the videos first)")
+    i.add_argument("--share", nargs="+", metavar="LATENT",
+                   help="with several videos: latents with one value for all of them (e.g. the same object's "
+                        "friction k1); the others are per video, named LATENT@1, LATENT@2, ...")
+    i.add_argument("--fix", action="append", metavar="NAME=VALUE",
+                   help="fix a latent at a known value instead of inferring it (repeatable): NAME in every video, "
+                        "NAME@2 in video 2 only (e.g. a reference object's mass); added to the scene files' "
+                        "\"fixed\" sections")
     i.add_argument("--chains", type=chains_int, default=None, help="chains (default: the scenario's protocol, ramp 16, "
                    "splash 50)")
     i.add_argument("--sweeps", type=sweeps_int, default=None, help="sweeps per chain (default: 75)")
@@ -941,33 +954,23 @@ def build_parser() -> argparse.ArgumentParser:
                     help="add the recognition model's evaluation (the --out folder of `galileo recognize eval`)")
     rp.set_defaults(func=cmd_report)
 
-    sc = sub.add_parser("scene", help="a ramp scene file for your own video, from four points of the ramp's top "
-                        "surface clicked on its first frame and the ramp's size and angle")
-    sc.add_argument("video", help="your video of the ramp")
-    sc.add_argument("--ramp-px", required=True, metavar='"u,v u,v u,v u,v"',
-                    help="four points of the ramp's top surface in the first frame (pixels), in the order upper "
-                         "near, upper far, foot far, foot near (near: the side edge closer to the camera)")
-    sc.add_argument("--upper-at-m", type=float, default=None,
-                    help="how far up the ramp (from the foot) the two upper points are (default: its length, the "
-                         "upper corners)")
-    sc.add_argument("--ramp-length-m", type=float, required=True)
-    sc.add_argument("--ramp-width-m", type=float, required=True)
-    sc.add_argument("--angle-deg", type=float, required=True, help="the ramp's angle to the ground")
-    sc.add_argument("--start-m", type=float, default=None,
-                    help="how far up the ramp the object starts, from the foot to its centre (default: the object is "
-                         "found in the first frame, where it differs from the video's end; a video in which it "
-                         "never moves needs this)")
-    sc.add_argument("--focal-px", type=float, default=None, help="the focal length (default: estimated from the points)")
-    sc.add_argument("--target", choices=["none", "cardboard", "foam"], default="none")
-    sc.add_argument("--target-distance-m", type=float, default=None,
-                    help="from the ramp's foot to the target's near face (default 0.1)")
-    sc.add_argument("--target-size-m", metavar="X,Y,Z", default=None, help="the target box's size (default: the kind's)")
+    from .clicks import add_flags_when_parsed
+
+    sc = sub.add_parser("scene", help="a scene file for your own video, from points clicked on its first frame and "
+                        "a few measured numbers (`galileo scene --help`: each scenario's points and numbers)")
+    sc.add_argument("video", help="your video")
+    sc.add_argument("--scenario", type=scenario_name, default=registry.DEFAULT, metavar="NAME",
+                    help=f"the scenario the video shows (default {registry.DEFAULT})")
+    sc.add_argument("--points", "--ramp-px", required=True, metavar='"u,v u,v ..."',
+                    help="the scenario's points in the video's first frame (pixels), in its order (below)")
     sc.add_argument("--out", required=True, help="scene JSON for galileo track and galileo infer")
     sc.set_defaults(func=cmd_scene)
+    add_flags_when_parsed(sc)    # each scenario's numbers, from its calibration's fields
 
     cb = sub.add_parser("calibrate", help="simulation-based calibration (rank histograms, ECDF tests, interval "
                         "coverage) on simulated observations, or interval coverage on a rendered dataset")
-    cb.add_argument("--scenario", default="ramp", help="scenario (default ramp)")
+    cb.add_argument("--scenario", type=scenario_name, default=registry.DEFAULT, metavar="NAME",
+                    help=f"scenario (default {registry.DEFAULT})")
     cb.add_argument("--n", type=count_int, default=None, help="simulations from the prior (SBC)")
     cb.add_argument("--videos", metavar="DIR", default=None,
                     help="instead: interval coverage on this rendered dataset (folder from `galileo dataset`)")

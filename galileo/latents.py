@@ -124,3 +124,10 @@ def default_widths(latents: Sequence[Latent]):
     broad = [lat.broad for lat in latents]
     one = (lambda ws: ws[0] if ws and all(w == ws[0] for w in ws) else tuple(ws))
     return one(narrow), one(broad)
+
+
+def initial_positions(bounds: np.ndarray, n_chains: int, seed: int) -> np.ndarray:
+    """Chain starts drawn uniformly from the prior (reproducible from the seed)."""
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2**31,)))
+    lo, hi = bounds[:, 0], bounds[:, 1]
+    return lo + (hi - lo) * rng.uniform(size=(n_chains, len(bounds)))

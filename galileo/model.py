@@ -16,17 +16,23 @@ Data path, per video:
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, Sequence
 
 import numpy as np
 
 from .datatypes import Trajectory, Tracks
-from .latents import Latent, Noise
+from .drawing import Anchor, Connector, Drawing, Mesh  # noqa: F401  (part of the scenario interface)
+from .latents import Latent, Noise, initial_positions
+from .readout import Readout  # noqa: F401  (part of the scenario interface)
 
 if TYPE_CHECKING:
     from .camera import Camera
+    from .capabilities import Experiments, Recognition, Synthetic
+    from .clicks import Calibration
+    from .dataset import DatasetSpec
+
+CAPABILITIES = ("dataset", "experiments", "synthetic", "recognition", "calibration")
 
 
 class Likelihood(Protocol):
@@ -44,54 +50,6 @@ class Likelihood(Protocol):
     def __call__(self, position, threshold: float | None = None) -> tuple[float, bool]: ...
 
     def motion(self, position) -> Trajectory: ...
-
-
-@dataclass(frozen=True)
-class Mesh:
-    """A piece of static scene geometry for the viewer: a triangle mesh in the world frame."""
-    name: str
-    vertices: np.ndarray    # (V, 3) metres, world frame
-    faces: np.ndarray       # (T, 3)
-    color: tuple[int, int, int] = (180, 180, 180)
-    opacity: float = 1.0
-
-
-@dataclass(frozen=True)
-class Drawing:
-    """What the viewer draws of a scene: static meshes, and one mesh per object in its own
-    frame (posed per frame by a Trajectory's positions and orientations)."""
-    static: Sequence[Mesh] = ()
-    objects: Sequence[Mesh] = ()    # in object frames, in the Trajectory's object order
-    ground_z_m: float | None = 0.0  # a grid at this height, if any
-
-
-@dataclass(frozen=True)
-class Readout:
-    """An object a recognition model reads from one frame (by its tracked role), and the
-    latents its readings are: its mass and its friction coefficient (None: not a latent of
-    this scene). `mass_per_kg` is the mass latent's value per kilogram of the object: 1 for a
-    mass in kg, 1 / (1000 V) for a density in g/cm^3 of an object of V m^3."""
-    role: str
-    mass: str | None = None
-    friction: str | None = None
-    mass_per_kg: float = 1.0
-
-
-class SceneFile:
-    """`save` and `load` for a scenario's scene class (which names its `scenario` and has
-    `to_json`): one JSON file, written atomically, read and checked by the scenario."""
-    scenario: str
-
-    def save(self, path: str | Path) -> None:
-        from .jsonio import write_json
-
-        write_json(path, self.to_json())
-
-    @classmethod
-    def load(cls, path: str | Path):
-        from . import registry
-
-        return registry.get(cls.scenario).load_scene(path)
 
 
 class Scenario(ABC):
@@ -113,21 +71,27 @@ class Scenario(ABC):
     # where chains start unless the recognition model starts them (`initial_positions`), in words
     # for the app's Chains panel
     starts_doc: str = "drawn from the prior"
-    # the scenario's package: by default its `scene` module parses and makes scenes
-    # (`scene_from_json`, `default_scene`) and its `tracking` module tracks (`track`)
-    package: str = ""
 
-    def _part(self, module: str, name: str):
-        import importlib
+    # -- capabilities: each None where the scenario has none (subclasses set them, often as
+    # properties that import their module only when asked) ----------------------------------------
+    dataset: "DatasetSpec | None" = None          # `galileo dataset`: presets, plan, render one video
+    experiments: "Experiments | None" = None      # `galileo experiment` / `report`: records, summary, sections
+    synthetic: "Synthetic | None" = None          # `galileo calibrate`: observations from the likelihood's model
+    recognition: "Recognition | None" = None      # Galileo section 4: read one frame, start the chains
+    calibration: "Calibration | None" = None      # `galileo scene` and the upload page: clicks -> scene
 
-        if not self.package:
-            raise NotImplementedError(f"the {self.name} scenario names no package for its {module}.{name}")
-        return getattr(importlib.import_module(f"{self.package}.{module}"), name)
+    def capabilities(self) -> dict[str, bool]:
+        """Which capabilities the scenario has (what `galileo scenarios` lists)."""
+        return {name: getattr(self, name) is not None for name in CAPABILITIES}
 
     # -- scene -----------------------------------------------------------------------------
+    @abstractmethod
     def scene_from_json(self, data: Any) -> Any:
         """Parse and validate a scene (SceneError naming the field)."""
-        return self._part("scene", "scene_from_json")(data)
+
+    @abstractmethod
+    def default_scene(self) -> Any:
+        """A standard scene of this scenario (for `galileo scenarios`, the demo and the contract tests)."""
 
     def load_scene(self, path: str | Path) -> Any:
         from .errors import SceneError
@@ -145,10 +109,8 @@ class Scenario(ABC):
     def initial_positions(self, prepared_scene, latents: Sequence[Latent], bounds: np.ndarray, n_chains: int,
                           seed: int) -> np.ndarray:
         """Where chains 0..n_chains-1 start (n_chains, D): by default drawn from the prior
-        (`galileo.runner.initial_positions`, integer latents rounded); chain c's start must
+        (`galileo.latents.initial_positions`, integer latents rounded); chain c's start must
         not depend on n_chains, so that added chains start like a bigger run's."""
-        from .runner import initial_positions
-
         starts = initial_positions(bounds, n_chains, seed)
         for j, lat in enumerate(latents):
             if lat.integer:
@@ -162,14 +124,27 @@ class Scenario(ABC):
         default move set, never by `--moves paper`. Default: none."""
         return ()
 
+    def values(self, scene) -> dict[str, float]:
+        """The values the scene gives its latents (in a rendered video's scene: the truth), by
+        name. Default: the scene's `latents()`."""
+        fn = getattr(scene, "latents", None)
+        if fn is None:
+            raise NotImplementedError(f"the {self.name} scenario's scenes do not say their latents' values")
+        return {k: float(v) for k, v in fn().items()}
+
+    def shared_latents(self, prepared_scenes: Sequence) -> tuple[str, ...]:
+        """The latents the videos of a problem share without being told (`galileo.joint`): one
+        value for every video, e.g. one spring's stiffness under two loads. Default: none."""
+        return ()
+
     def with_values(self, scene, values: dict[str, float]):
         """A copy of the scene with latents (and scenario knobs) set; SceneError on an unknown name."""
         return scene.with_values(values)
 
     # -- observations ----------------------------------------------------------------------
+    @abstractmethod
     def track(self, video_path, scene, *, progress: bool = True, debug_video=None) -> Tracks:
-        """Pixels -> observations."""
-        return self._part("tracking", "track")(video_path, scene, progress=progress, debug_video=debug_video)
+        """Pixels -> observations: the scene's objects found and followed in the video."""
 
     @abstractmethod
     def prepare(self, scene, tracks: Tracks):
@@ -181,14 +156,6 @@ class Scenario(ABC):
     def simulate(self, scene, n_frames: int, values: dict[str, float] | None = None,
                  fps: float | None = None) -> Trajectory:
         """One plain simulation of the scene (with `values` overriding its latents)."""
-
-    def synthetic_tracks(self, prepared_scene, values: dict[str, float], rng: np.random.Generator,
-                         noise: float) -> Tracks:
-        """The observations this scenario's likelihood assumes, simulated at `values` with
-        noise of SD `noise` (for simulation-based calibration, `galileo calibrate`)."""
-        from .errors import GalileoError
-
-        raise GalileoError(f"the {self.name} scenario cannot simulate observations")
 
     @abstractmethod
     def likelihood(self, prepared_scene, tracks: Tracks, noise: float, speedups: bool = True) -> Likelihood:
@@ -217,15 +184,12 @@ class Scenario(ABC):
         raise GalileoError(f"the {self.name} scenario answers no questions")
 
     def describe(self, scene=None) -> dict:
-        """What `galileo scenarios` prints: name, description, latents with units and priors."""
+        """What `galileo scenarios` prints: name, description, latents with units and priors,
+        and which capabilities the scenario has."""
         lats = self.latents(scene if scene is not None else self.default_scene())
         return {"name": self.name, "description": self.description,
                 "noise": {"name": self.noise.name, "unit": self.noise.unit, "default": self.noise.default},
-                "latents": [lat.to_json() for lat in lats]}
-
-    def default_scene(self):
-        """A standard scene of this scenario (for `galileo scenarios` and the demo)."""
-        return self._part("scene", "default_scene")()
+                "latents": [lat.to_json() for lat in lats], "capabilities": self.capabilities()}
 
     # -- recognition (Galileo section 4): physical properties read from one frame ---------------
     # the mass range mapped to 0..1 on the recognition model's log-normalised scale
@@ -233,40 +197,17 @@ class Scenario(ABC):
     # patches come from the frames before the object has moved this far from its first position
     recognition_patch_motion_m: float = 0.01
 
-    # By default these come from the scenario package's `recognition` module, if it has one:
-    # `readouts(prepared)`, `label(prepared, tracks, values)`, `examples(folder)`, `features(prepared)`.
-    def _recognition(self, name: str):
-        return self.optional_part("recognition", name)
-
-    def optional_part(self, module: str, name: str):
-        """`name` from the scenario package's module `module` (e.g. "recognition",
-        "synthetic"), or None if the package has no such module or name."""
-        import importlib
-
-        if not self.package:
-            return None
-        full = f"{self.package}.{module}"
-        try:
-            return getattr(importlib.import_module(full), name, None)
-        except ModuleNotFoundError as e:
-            if e.name == full:
-                return None
-            raise
-
     def readouts(self, prepared_scene) -> tuple[Readout, ...]:
         """The objects a recognition model reads in this scene and the latents it starts
-        (none without a recognition module: the scenario then has no image recognition)."""
-        fn = self._recognition("readouts")
-        return tuple(fn(prepared_scene)) if fn else ()
+        (none without the recognition capability)."""
+        return tuple(self.recognition.readouts(prepared_scene)) if self.recognition else ()
 
     def recognition_label(self, prepared_scene, tracks: Tracks, values: dict[str, float]) -> dict[str, dict]:
         """The "Galileo label" of each read object from a MAP: {role: {"mass_kg", "friction"}},
         None where the video does not identify the quantity. Default: the readout latents."""
-        fn = self._recognition("label")
-        if fn:
-            return fn(prepared_scene, tracks, values)
-        return {r.role: {"mass_kg": values[r.mass] / r.mass_per_kg if r.mass in values else None,
-                         "friction": values.get(r.friction) if r.friction else None}
+        if self.recognition and self.recognition.label:
+            return self.recognition.label(prepared_scene, tracks, values)
+        return {r.role: {q: (values[lat] / per if lat in values else None) for q, (lat, per) in r.reads.items()}
                 for r in self.readouts(prepared_scene)}
 
     def recognition_examples(self, folder: str | Path) -> list:
@@ -274,15 +215,14 @@ class Scenario(ABC):
         read in which video, the object and group that splits keep together, ground truth)."""
         from .errors import GalileoError
 
-        fn = self._recognition("examples")
-        if fn is None:
+        if self.recognition is None or self.recognition.examples is None:
             raise GalileoError(f"the {self.name} scenario has no recognition dataset")
-        return fn(Path(folder))
+        return self.recognition.examples(Path(folder))
 
     def recognition_features(self, prepared_scene) -> np.ndarray:
         """Numbers describing a prepared scene beyond its latents (angles, sizes) that the
         simulation-trained recognition model reads beside the tracked velocities."""
-        fn = self._recognition("features")
+        fn = self.recognition.features if self.recognition else None
         return np.asarray(fn(prepared_scene), float) if fn else np.zeros(0)
 
     # -- the video a scene describes ------------------------------------------------------------

@@ -9,8 +9,9 @@ import importlib
 from pathlib import Path
 from typing import Any
 
-from .errors import SceneError
+from .errors import GalileoError, SceneError
 from .fields import show
+from .joint import JointScenario, JointScene, joint_from_json, split_name, video_name
 from .model import Scenario
 
 DEFAULT = "ramp"
@@ -28,6 +29,11 @@ def register(scenario: Scenario) -> Scenario:
 
 def names() -> list[str]:
     return sorted(set(_BUILTIN) | set(_loaded))
+
+
+def with_capability(capability: str) -> list[str]:
+    """The names of the scenarios that have `capability` (see `galileo.model.CAPABILITIES`)."""
+    return [n for n in names() if getattr(get(n), capability) is not None]
 
 
 def get(name: str) -> Scenario:
@@ -50,12 +56,39 @@ def name_in(data: Any) -> str:
 
 
 def of(scene) -> Scenario:
-    """The scenario of a scene object."""
+    """The scenario of a scene object (of a problem of several videos, or with fixed latents:
+    a `galileo.joint.JointScenario` over its scenario)."""
+    if isinstance(scene, JointScene):
+        return JointScenario(get(scene.scenario))
     return get(scene.scenario)
 
 
 def scene_from_json(data: Any):
-    return get(name_in(data)).scene_from_json(data)
+    """A scene from its JSON: a scenario's scene file, or a problem's (`galileo.joint`: several
+    videos, or latents fixed by a "fixed" section)."""
+    return joint_from_json(data, get(name_in(data)).scene_from_json)
+
+
+def problem(scenes, share=(), fixed: dict | None = None):
+    """The problem of `scenes` (one per video, of one scenario) sharing the latents `share`,
+    with `fixed` ({name or name@video: value}) fixed: a `JointScene`, or the one scene itself
+    when there is nothing to join. Scenes that fix latents themselves (their files' "fixed"
+    sections) keep them, per video, unless `fixed` names them too."""
+    scenes = list(scenes)
+    if not scenes:
+        raise GalileoError("a problem needs at least one video")
+    merged, plain, n = dict(fixed or {}), [], len(scenes)
+    for v, s in enumerate(scenes):
+        if isinstance(s, JointScene):
+            if len(s.scenes) != 1:
+                raise GalileoError("give each video of a problem its own scene file")
+            for k, val in s.fixed.items():
+                base, at = split_name(k)
+                merged.setdefault(k if at is not None else video_name(base, v, n), val)
+            s = s.scenes[0]
+        plain.append(s)
+    return scene_from_json({"scenario": plain[0].scenario, "videos": [s.to_json() for s in plain],
+                            "share": list(share), "fixed": merged})
 
 
 def load_scene(path: str | Path):

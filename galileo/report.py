@@ -640,9 +640,9 @@ def build_report(records: Iterable[dict], out_dir: str | Path, meta: dict | None
     scenario = _scenario(records, meta)
     sections: list[Section] = []
     if scenario is not None:
-        own = registry.get(scenario).optional_part("report", "sections")
-        if own is not None:
-            sections += own(records, fig_dir)
+        exp = registry.get(scenario).experiments
+        if exp is not None and exp.sections is not None:
+            sections += exp.sections(records, fig_dir)
     if recognition is not None:
         sections.append(recognition_section(recognition, fig_dir))
     sections += [convergence_section(records, fig_dir), coverage_section(records, fig_dir),

@@ -148,7 +148,7 @@ class InferenceResult:
         """Posterior summaries of the scenario's derived quantities (e.g. the ramp's mass
         ratio, the identified quantity), one value per kept draw; a positive quantity also gets
         its log's summary (`log_<name>`)."""
-        return derived_summaries(registry.get(self.scenario), self.scene, self.names,
+        return derived_summaries(registry.of(self.scene), self.scene, self.names,
                                  self.kept().reshape(-1, len(self.names)))
 
     def per_chain(self) -> list[dict]:
@@ -192,7 +192,7 @@ class InferenceResult:
                 "sweeps": int(self.samples.shape[1]), "per_chain": self.per_chain()}
 
     def derived(self) -> dict:
-        return registry.get(self.scenario).derived(self.scene, self.map)
+        return registry.of(self.scene).derived(self.scene, self.map)
 
     def mass_ratio(self) -> float | None:
         return self.derived().get("mass_ratio")
@@ -396,7 +396,6 @@ def load_result(path: str | Path) -> ResultFile:
             raise ResultError(f"{path} is not a galileo result file: missing {key!r}")
     where = f"result file {path}"
     name = d.get("scenario", registry.DEFAULT)
-    scenario = registry.get(name)
     scene_d = d["scene"]
     if not isinstance(scene_d, dict):
         raise ResultError(f"{where}: scene: expected an object")
@@ -407,13 +406,16 @@ def load_result(path: str | Path) -> ResultFile:
     if scene_name != name:
         raise ResultError(f"{where}: scene: a {scene_name!r} scene in a {name!r} result")
     try:
-        scene = scenario.scene_from_json(scene_d)
+        scene = registry.scene_from_json(scene_d)
     except GalileoError as e:
         raise ResultError(f"{where}: scene: {e}") from None
     m = d["map"]
     if not isinstance(m, dict) or not m:
         raise ResultError(f"{where}: map: expected an object of latent values, got {m!r}")
-    specs = {lat.name: lat for lat in scenario.latents(scene)}
+    try:
+        specs = {lat.name: lat for lat in registry.of(scene).latents(scene)}
+    except GalileoError as e:
+        raise ResultError(f"{where}: scene: {e}") from None
     latents = d.get("latents", list(specs))   # (results before the field: the scene's)
     if (not isinstance(latents, list) or not latents or not all(isinstance(n, str) and n for n in latents)
             or len(set(latents)) != len(latents)):

@@ -43,6 +43,7 @@ from .progress import tqdm
 from . import registry
 from .datatypes import Tracks
 from .errors import GalileoError
+from .joint import tracks_from_json, tracks_to_json
 from .latents import Latent, Noise, by_name, check_bounds, check_noise, check_widths, default_widths
 from .mcmc import JointRW, MHState, Proposal, adapt, chain_rng, sweep
 from .results import MIN_ESS, RHAT_TARGET, InferenceResult, convergence, kept_draws
@@ -51,13 +52,6 @@ MOVE_SETS = ("default", "paper")
 UNTIL_WARMUP_SWEEPS = 100
 PROGRESS_PIECE_S = 2.0   # with a progress bar, `infer` runs each chain in pieces of about this long
 SHUTDOWN_GRACE_S = 10.0  # how long LocalPool.shutdown waits for a worker to exit before it kills it
-
-def initial_positions(bounds: np.ndarray, n_chains: int, seed: int) -> np.ndarray:
-    """Chain starts drawn uniformly from the prior (reproducible from the seed)."""
-    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2**31,)))
-    lo, hi = bounds[:, 0], bounds[:, 1]
-    return lo + (hi - lo) * rng.uniform(size=(n_chains, len(bounds)))
-
 
 # -- settings: what a user may change, checked in one place ---------------------------------------
 
@@ -221,12 +215,14 @@ class Problem:
     no pybullet client ever does), and a key naming it."""
     scenario: str
     scene_json: dict
-    tracks_json: dict
+    tracks_json: dict | list    # a list: the tracks of each video of a problem of several
     key: str
 
     @classmethod
-    def of(cls, scene, tracks: Tracks) -> "Problem":
-        scene_json, tracks_json = scene.to_json(), tracks.to_json()
+    def of(cls, scene, tracks) -> "Problem":
+        """One video's (scene, Tracks), or a problem's (`galileo.joint.JointScene`, [Tracks per video])."""
+        scene_json = scene.to_json()
+        tracks_json = tracks_to_json(tracks)
         text = json.dumps([scene.scenario, scene_json, tracks_json], sort_keys=True)
         return cls(scene.scenario, scene_json, tracks_json, hashlib.sha1(text.encode()).hexdigest())
 
@@ -261,9 +257,9 @@ def likelihood_for(problem: Problem, noise: float, speedups: bool):
     key = (problem.key, noise, speedups)
     lik = _likelihoods.get(key)
     if lik is None:
-        scenario = registry.get(problem.scenario)
-        scene = scenario.scene_from_json(problem.scene_json)
-        tracks = Tracks.from_json(problem.tracks_json)
+        scene = registry.scene_from_json(problem.scene_json)
+        scenario = registry.of(scene)
+        tracks = tracks_from_json(problem.tracks_json)
         lik = scenario.likelihood(scenario.prepare(scene, tracks), tracks, noise, speedups)
         _likelihoods.clear()   # one at a time: a worker serves one problem (its worlds are cached too)
         _likelihoods[key] = lik
@@ -619,7 +615,7 @@ def with_priors(scene, overrides: dict):
     merged.update(overrides)
     d["priors"] = merged
     try:
-        return registry.get(scene.scenario).scene_from_json(d)
+        return registry.scene_from_json(d)
     except SceneError as e:
         raise GalileoError(f"--priors: {e}") from None
 

@@ -32,7 +32,8 @@ TEST_CAP_BYTES = 100_000     # the error test's upload cap (the app's is 500 MB)
 def clip(tmp_path_factory):
     """(video path, true scene): 1 s of the demo's block sliding down the ramp at 320x240."""
     from galileo.camera import look_at_camera
-    from galileo.scenarios.ramp.render import Look, render_to_video
+    from galileo.render import Look
+    from galileo.scenarios.ramp.render import render_to_video
     from galileo.scenarios.ramp.scene import default_scene
 
     cam = look_at_camera((-0.2, -1.2, 0.3), (-0.2, 0.0, 0.16), focal_px=280.0, width_px=W, height_px=H,
@@ -184,12 +185,13 @@ def test_upload_calibrate_and_infer_in_the_browser(clip, tmp_path):
                 close_notifications(page)
                 for i, (u, v) in enumerate(uv):
                     click_pixel(page, u, v)
-                    wait_text(guide, f"Click point {i + 2} of 4" if i < 3 else "All four points placed")
+                    wait_text(guide, f"Click point {i + 2} of 4" if i < 3 else "All 4 points placed")
                 fill(page, "Length (m)", LENGTH_M)
                 fill(page, "Width (m)", WIDTH_M)
                 fill(page, "Angle (deg)", ANGLE_DEG)
                 fill(page, "Upper at (m)", UPPER_AT_M)
-                result = wait_text(page.locator(".galileo-calib"), r"reprojection error [\d.]+ px.*\(found\)")
+                result = wait_text(page.locator(".galileo-calib"),
+                                   r"reprojection error [\d.]+ px.*object found in the first frame")
                 err_px = float(re.search(r"reprojection error ([\d.]+) px", result).group(1))
                 assert err_px < 1.0, result           # clicks land within a CSS pixel of the truth
                 page.screenshot(path=str(tmp_path / "calibration.png"))
@@ -262,7 +264,7 @@ def test_wrong_clicks_and_wrong_files_say_so_in_the_browser(clip, tmp_path):
                 close_notifications(page)
                 for i, (u, v) in enumerate(uv[[1, 0, 2, 3]]):
                     click_pixel(page, u, v)
-                    wait_text(guide, f"Click point {i + 2} of 4" if i < 3 else "All four points placed")
+                    wait_text(guide, f"Click point {i + 2} of 4" if i < 3 else "All 4 points placed")
                 calib = page.locator(".galileo-calib")
                 text = wait_text(calib, "cross over")
                 assert "upper near, upper far, foot far, foot near" in text
@@ -329,49 +331,60 @@ def test_a_click_maps_back_to_its_pixel_through_the_letterbox():
             assert ((sx * pw - left) / s, (sy * ph - top) / s) == pytest.approx((u, v))
 
 
-def test_points_and_sizes_typed_in_the_panel():
+def test_points_and_numbers_typed_in_the_panel():
+    from galileo.clicks import calibration_of, parse_points
     from galileo.errors import GalileoError
-    from ui.calibrate import format_points, parse_points, parse_size
+    from ui.calibrate import format_points, for_panel
 
-    pts = parse_points(" 37.9,103.6  64.9,100 (200.7,148.8); 212,165.8 ")
+    pts = parse_points(" 37.9,103.6  64.9,100 (200.7,148.8); 212,165.8 ", 4, "Points (px)")
     assert pts == [(37.9, 103.6), (64.9, 100.0), (200.7, 148.8), (212.0, 165.8)]
-    assert parse_points(format_points(pts)) == pts and parse_points("") == []
+    assert parse_points(format_points(pts), 4) == pts and parse_points("", 4) == []
     for bad in ("1,2 3", "a,b", "1,2 " * 5):
-        with pytest.raises(GalileoError, match="Points"):
-            parse_points(bad)
-    assert parse_size(" ") is None and parse_size("0.1, 0.08 0.07") == (0.1, 0.08, 0.07)
-    with pytest.raises(GalileoError, match="Target size"):
-        parse_size("0.1, 0.08")
+        with pytest.raises(GalileoError, match=re.escape("Points (px)")):
+            parse_points(bad, 4, "Points (px)")
+    # the target's size: three numbers, blank for the kind's own; its message in the panel's words
+    ramp = calibration_of("ramp")
+    given = {"ramp_length_m": "0.9", "ramp_width_m": "0.3", "angle_deg": "20"}
+    assert ramp.values({**given, "target_size_m": " "})["target_size_m"] is None
+    assert ramp.values({**given, "target_size_m": "0.1, 0.08 0.07"})["target_size_m"] == (0.1, 0.08, 0.07)
+    with pytest.raises(GalileoError) as e:
+        ramp.values({**given, "target_size_m": "0.1, 0.08"})
+    assert for_panel(str(e.value), ramp) == "Target size (m): expected 3 numbers x, y, z, got '0.1, 0.08'"
 
 
 def test_the_panel_solves_the_scene_and_finds_the_start(clip):
+    from galileo.clicks import NotFound, calibration_of
     from galileo.errors import GalileoError
-    from ui.calibrate import Numbers, StartNotFound, draw, probe_video, solve
+    from ui.calibrate import draw, probe_video, solve
 
     video, truth = clip
+    ramp = calibration_of("ramp")
     c = probe_video(video, "ramp-clip.mp4")
     assert (c.width_px, c.height_px, c.n_frames, c.fps) == (W, H, N_FRAMES, 30.0)
-    nums = Numbers(LENGTH_M, WIDTH_M, ANGLE_DEG, upper_at_m=UPPER_AT_M, target="cardboard", target_distance_m=0.2,
-                   target_size="0.12, 0.1, 0.08")
-    scene, err, found = solve(c, true_points(truth), nums)
-    assert err < 0.01 and found and scene.start_distance_m() == pytest.approx(truth.start_distance_m(), abs=0.02)
+    nums = {"ramp_length_m": str(LENGTH_M), "ramp_width_m": str(WIDTH_M), "angle_deg": str(ANGLE_DEG),
+            "upper_at_m": str(UPPER_AT_M), "target": "cardboard", "target_distance_m": "0.2",
+            "target_size_m": "0.12, 0.1, 0.08"}
+    scene, err = solve(c, true_points(truth), ramp, nums)
+    assert err < 0.01 and scene.start_distance_m() == pytest.approx(truth.start_distance_m(), abs=0.02)
+    assert "object found in the first frame" in ramp.describe(scene, nums)
     assert scene.target.distance_m == 0.2 and scene.target.shape.size_m == (0.12, 0.1, 0.08)
-    img, s = draw(c, true_points(truth), scene)
+    img, s = draw(c, true_points(truth), ramp, scene)
     assert img.shape == (H * s, W * s, 3)
     with pytest.raises(GalileoError, match="cross over"):
-        solve(c, true_points(truth)[[1, 0, 2, 3]], nums)
+        solve(c, true_points(truth)[[1, 0, 2, 3]], ramp, nums)
     with pytest.raises(GalileoError, match="click 2 more points"):
-        solve(c, true_points(truth)[:2], nums)
+        solve(c, true_points(truth)[:2], ramp, nums)
     # an object that never moves: the start cannot be found, and the panel asks for it by name
     still = np.repeat(c.frames[:1], 4, axis=0)
-    with pytest.raises(StartNotFound, match=re.escape("enter Start (m)")) as e:
-        solve(type(c)(**{**c.__dict__, "frames": still}), true_points(truth), nums)
+    with pytest.raises(NotFound, match=re.escape("enter Start (m)")) as e:
+        solve(type(c)(**{**c.__dict__, "frames": still}), true_points(truth), ramp, nums)
     assert e.value.scene.camera is not None
 
 
 def test_a_failed_start_is_shown_in_the_page_and_start_can_be_pressed_again(clip, tmp_path):
     from galileo.errors import GalileoError
-    from ui.calibrate import Calibrator, Numbers, probe_video, solve
+    from galileo.clicks import calibration_of
+    from ui.calibrate import Calibrator, probe_video, solve
 
     video, truth = clip
     calls = []
@@ -384,8 +397,9 @@ def test_a_failed_start_is_shown_in_the_page_and_start_can_be_pressed_again(clip
     cal = Calibrator("127.0.0.1", free_port(), tmp_path / "sessions", start)
     try:
         c = probe_video(video, "ramp-clip.mp4")
-        scene = solve(c, true_points(truth), Numbers(LENGTH_M, WIDTH_M, ANGLE_DEG, upper_at_m=UPPER_AT_M))[0]
-        cal.clip, cal.solved, cal.busy = c, (scene, 0.0, True), True
+        nums = {"ramp_length_m": LENGTH_M, "ramp_width_m": WIDTH_M, "angle_deg": ANGLE_DEG, "upper_at_m": UPPER_AT_M}
+        scene = solve(c, true_points(truth), calibration_of("ramp"), nums)[0]
+        cal.clip, cal.solved, cal.busy = c, (scene, 0.0), True
         assert cal._run_start(c, scene) is None
         (video_path, scene_path, name), = calls
         assert video_path == video and name == "ramp-clip" and scene_path.exists()
@@ -406,22 +420,51 @@ def test_typed_numbers_are_read_exactly_or_refused(clip, tmp_path):
     video, truth = clip
     cal = Calibrator("127.0.0.1", free_port(), tmp_path / "sessions", lambda *a: None)
     try:
+        assert cal.scenario == "ramp"
         cal.clip = probe_video(video, "ramp-clip.mp4")
         cal.points = [tuple(p) for p in true_points(truth)]
-        cal.width.value, cal.angle.value, cal.upper_at.value = str(WIDTH_M), str(ANGLE_DEG), str(UPPER_AT_M)
-        cal.length.value = str(LENGTH_M)
+        inputs = cal.inputs
+        inputs["ramp_width_m"].value, inputs["angle_deg"].value = str(WIDTH_M), str(ANGLE_DEG)
+        inputs["upper_at_m"].value, inputs["ramp_length_m"].value = str(UPPER_AT_M), str(LENGTH_M)
         cal._recompute()
         assert cal.solved is not None and not cal.start_button.disabled
-        for text, reason in (("1e308", "ramp length (m) must be at most 10 m"), ("abc", "Length (m): expected a number, got 'abc'"),
-                             ("-0.9", "must be a positive number"), ("nan", "expected a finite number")):
-            cal._upper_follows = False
-            cal.length.value = text
+        for text, reason in (("1e308", "Length (m): 1e308 is outside (0, 10]"),
+                             ("abc", "Length (m): expected a number, got 'abc'"),
+                             ("-0.9", "Length (m): -0.9 is outside (0, 10]"), ("nan", "expected a finite number"),
+                             ("", "Length (m) is needed: the ramp board's length")):
+            inputs["ramp_length_m"].value = text
             cal._recompute()
             assert cal.solved is None and cal.start_button.disabled, text
             assert "galileo-error" in cal.result.content and html.escape(reason, quote=True) in cal.result.content, (
                 text, cal.result.content)
-        cal.length.value = str(LENGTH_M)
+        inputs["ramp_length_m"].value = str(LENGTH_M)
         cal._recompute()
         assert cal.solved is not None and not cal.start_button.disabled
+    finally:
+        cal.close()
+
+
+def test_the_scenario_chooser_offers_the_calibrated_scenarios_and_draws_their_own_numbers(clip, tmp_path):
+    """The page names no scenario: its chooser holds the registered scenarios that declare a
+    calibration, and choosing one shows that calibration's numbers and points (each field's
+    label and unit, its default) and keeps what was typed for the other."""
+    from galileo.clicks import calibration_of
+    from ui.calibrate import Calibrator, probe_video
+
+    video, _ = clip
+    cal = Calibrator("127.0.0.1", free_port(), tmp_path / "sessions", lambda *a: None)
+    try:
+        assert cal.scenario_input.options == ("ramp", "splash")
+        cal.clip = probe_video(video, "ramp-clip.mp4")
+        cal.inputs["angle_deg"].value = "12.5"
+        cal.scenario_input.value = "splash"       # (as a browser's change does: its callback runs)
+        splash = calibration_of("splash")
+        assert wait_until(lambda: cal.scenario == "splash", 30)
+        assert [h.label for h in cal.inputs.values()] == [f.title for f in splash.fields]
+        assert cal.inputs["tank_width_m"].value == "0.4" and cal.inputs["water_level_m"].value == ""
+        assert "Click point 1 of 6: top left" in cal.guide.content
+        cal.scenario_input.value = "ramp"
+        assert wait_until(lambda: cal.scenario == "ramp", 30)
+        assert cal.inputs["angle_deg"].value == "12.5"
     finally:
         cal.close()

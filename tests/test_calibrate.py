@@ -102,7 +102,7 @@ def target_scene():
 
 def test_noise_free_synthetic_tracks_are_the_likelihoods_motion(target_scene):
     sc = registry.get("ramp")
-    tracks = sc.synthetic_tracks(target_scene, VALUES, np.random.default_rng(0), 0.0)
+    tracks = sc.synthetic.tracks(target_scene, VALUES, np.random.default_rng(0), 0.0)
     lik = sc.likelihood(sc.prepare(target_scene, tracks), tracks, 0.05)
     assert np.array_equal(lik.v_obs, np.stack([t.velocity_mps[:, [0, 2]] for t in tracks.objects]))
     motion = lik.motion([VALUES[n] for n in lik.names])
@@ -133,7 +133,7 @@ def test_noisy_synthetic_tracks_score_as_the_noise_model_says(target_scene, obse
     sigma, nu = 0.05, scene.priors.student_t_dof
     zs = []
     for seed in range(6):
-        tracks = sc.synthetic_tracks(scene, VALUES, np.random.default_rng(seed), sigma)
+        tracks = sc.synthetic.tracks(scene, VALUES, np.random.default_rng(seed), sigma)
         lik = sc.likelihood(sc.prepare(scene, tracks), tracks, sigma)
         n = 2 * sum(int(t.visible.sum()) for t in tracks.objects)
         if observation == "gaussian":
@@ -149,7 +149,7 @@ def test_noisy_synthetic_tracks_score_as_the_noise_model_says(target_scene, obse
     assert abs(zs.mean()) < 4 / math.sqrt(len(zs)), zs
     # and the other model's noise would not pass: t noise scored as Gaussian has heavy tails
     if observation == "student_t":
-        tracks = sc.synthetic_tracks(scene, VALUES, np.random.default_rng(0), sigma)
+        tracks = sc.synthetic.tracks(scene, VALUES, np.random.default_rng(0), sigma)
         gauss = with_observation(target_scene, "gaussian")
         lik = sc.likelihood(sc.prepare(gauss, tracks), tracks, sigma)
         n = 2 * sum(int(t.visible.sum()) for t in tracks.objects)
@@ -158,10 +158,17 @@ def test_noisy_synthetic_tracks_score_as_the_noise_model_says(target_scene, obse
         assert z < -4, z
 
 
-def test_a_scenario_without_synthetic_observations_says_so(target_scene):
-    splash = registry.get("splash")
-    with pytest.raises(GalileoError, match="cannot simulate observations"):
-        splash.synthetic_tracks(splash.default_scene(), {}, np.random.default_rng(0), 0.1)
+def test_a_scenario_without_synthetic_observations_says_so(tmp_path, monkeypatch):
+    from scenarios.drop import DropScenario
+
+    class Unsimulated(DropScenario):
+        name = "unsimulated"
+        synthetic = None
+
+    monkeypatch.setattr(registry, "_loaded", dict(registry._loaded))
+    registry.register(Unsimulated())
+    with pytest.raises(GalileoError, match="the unsimulated scenario cannot simulate observations"):
+        sbc("unsimulated", 1, tmp_path)
 
 
 # -- the command line ----------------------------------------------------------------------------------

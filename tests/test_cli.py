@@ -15,13 +15,13 @@ def run_cli(*args):
     return p.returncode, p.stdout, p.stderr
 
 
-def test_simulate_quick_form_writes_documented_trajectory(tmp_path):
+def test_simulate_a_scenarios_default_scene_writes_documented_trajectory(tmp_path):
     out = tmp_path / "traj.json"
-    assert main(["simulate", "--angle-deg", "20", "--friction", "0.2", "--mass", "0.5",
-                 "--target", "none", "--duration-s", "1.0", "--out", str(out)]) == 0
+    assert main(["simulate", "--scenario", "ramp", "--set", "angle_deg=20", "--set", "k1=0.2", "--set", "m1_kg=0.5",
+                 "--duration-s", "1.0", "--fps", "30", "--out", str(out)]) == 0
     d = json.loads(out.read_text())
     assert d["fps"] == 30.0 and len(d["time_s"]) == 31 and d["time_s"][1] == pytest.approx(1 / 30)
-    (obj,) = d["objects"]
+    obj = d["objects"][0]
     assert obj["name"] == "ramp_object"
     pos, vel = np.array(obj["position_m"]), np.array(obj["velocity_mps"])
     assert pos.shape == vel.shape == (31, 3)
@@ -68,5 +68,5 @@ def test_bad_scene_file_is_one_line_exit_2(tmp_path, content, needle):
 
 
 def test_unknown_set_name_is_an_error(tmp_path):
-    rc, _, err = run_cli("simulate", "--target", "none", "--set", "mass=3", "--out", str(tmp_path / "t.json"))
+    rc, _, err = run_cli("simulate", "--scenario", "ramp", "--set", "mass=3", "--out", str(tmp_path / "t.json"))
     assert rc == 2 and "unknown name 'mass'" in err and len(err.strip().splitlines()) == 1

@@ -6,7 +6,8 @@ import itertools
 import numpy as np
 import pytest
 
-from galileo.scenarios.ramp.render import Look, Renderer
+from galileo.render import Look
+from galileo.scenarios.ramp.render import Renderer
 from galileo.scenarios.ramp.scene import default_camera, default_scene
 from galileo.shapes import Shape
 

@@ -16,7 +16,7 @@ def demo(tmp_path_factory):
 
 
 def _renderer(seed=0):
-    from galileo.scenarios.ramp.render import Look
+    from galileo.render import Look
     from galileo.scenarios.splash.render import Renderer
 
     spec = plan("demo", seed)[0]

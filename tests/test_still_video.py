@@ -23,7 +23,8 @@ N_FRAMES = 31           # 1 s at 30 fps
 def still_video(tmp_path_factory):
     """(folder, true trajectory) of a rendered 20 degree video in which nothing moves: a
     block that holds on the ramp and a cardboard box that is never hit (about 3 s)."""
-    from galileo.scenarios.ramp.render import Look, render_to_video
+    from galileo.render import Look
+    from galileo.scenarios.ramp.render import render_to_video
 
     scene = default_scene(ANGLE_DEG, friction=FRICTION, target="cardboard", distance_m=0.1,
                           camera=default_camera(n_frames=N_FRAMES), offset_units=2)

@@ -97,7 +97,8 @@ def test_tracks_file_has_the_trajectory_layout(demo_dir, tmp_path):
 @pytest.fixture(scope="module")
 def untouched_target_video(tmp_path_factory):
     """The ramp object stops on the ground well before the target: the target never moves."""
-    from galileo.scenarios.ramp.render import Look, render_to_video
+    from galileo.render import Look
+    from galileo.scenarios.ramp.render import render_to_video
 
     scene = default_scene(20, friction=0.33, target="cardboard", distance_m=0.3,
                           camera=default_camera(n_frames=61))

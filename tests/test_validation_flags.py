@@ -75,21 +75,21 @@ def test_infer_settings_use_the_librarys_checks_before_tracking(tmp_path, capsys
     (["--frames", "0"], "--frames must be at least 1"),
     (["--frames", "10", "--duration-s", "1"], "not both"),
     (["--set", "offset_units=nan"], "finite"), (["--set", "k1=inf"], "finite"), (["--set", "k1"], "NAME=VALUE"),
-    (["--set", "=3"], "NAME=VALUE"), (["--mass", "-1"], "--mass"), (["--friction", "nan"], "--friction"),
-    (["--angle-deg", "inf"], "--angle-deg"),
+    (["--set", "=3"], "NAME=VALUE"), (["--set", "m1_kg=-1"], "m1_kg"), (["--set", "k1=nan"], "finite"),
+    (["--set", "angle_deg=inf"], "finite"), (["--scenario", "nope"], "unknown scenario 'nope'"),
 ])
 def test_simulate_numbers_and_frame_budget(tmp_path, capsys, argv, needle):
-    refused(capsys, ["simulate", "--target", "none", *argv, "--out", str(tmp_path / "t.json")], needle)
+    refused(capsys, ["simulate", "--scenario", "ramp", *argv, "--out", str(tmp_path / "t.json")], needle)
     assert not (tmp_path / "t.json").exists()
 
 
 def test_simulate_values_set_pass_the_scene_files_checks(tmp_path, capsys):
     out = tmp_path / "t.json"
-    for argv in (["--set", "m1_kg=1e308"], ["--set", "k1=-3"], ["--angle-deg", "95"]):
-        refused(capsys, ["simulate", "--target", "none", *argv, "--out", str(out)])
+    for argv in (["--set", "m1_kg=1e308"], ["--set", "k1=-3"], ["--set", "angle_deg=95"]):
+        refused(capsys, ["simulate", "--scenario", "ramp", *argv, "--out", str(out)])
         assert not out.exists()
     # a valid run still runs, at the rate asked, with times that grow
-    assert main(["simulate", "--target", "none", "--frames", "5", "--fps", "60", "--out", str(out)]) == 0
+    assert main(["simulate", "--scenario", "ramp", "--frames", "5", "--fps", "60", "--out", str(out)]) == 0
     d = json.loads(out.read_text())
     assert d["fps"] == 60 and d["time_s"] == pytest.approx([i / 60 for i in range(5)])
 

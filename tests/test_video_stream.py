@@ -65,7 +65,8 @@ def slide(request, tmp_path_factory):
     """(fps, folder, true scene, true trajectory) of a wooden block sliding from START_M up a
     20 degree ramp (friction 0.2) past its foot, filmed at 480x360 at 25 or 29.97 fps (0.9 s).
     Before issue 24 such a scene was refused: sim_hz 240 is no multiple of either rate."""
-    from galileo.scenarios.ramp.render import Look, render_to_video
+    from galileo.render import Look
+    from galileo.scenarios.ramp.render import render_to_video
     from galileo.scenarios.ramp.scene import Ramp, Scene, SceneObject
     from galileo.shapes import Shape
 

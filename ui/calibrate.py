@@ -1,23 +1,25 @@
 """Bring your own video, in the browser (issue 14): `python app.py --upload`.
 
-A small viser app that runs before the viewer, on the same address:
+A small viser app that runs before the viewer, on the same address. It knows no scenario: it
+draws what the chosen scenario's calibration declares (`galileo.clicks.Calibration`: its
+points, its numbers, its solver and overlay), for every registered scenario that has one.
 
 1. "Upload video": a video file of at most MAX_UPLOAD_BYTES (500 MB). Its type (the file's
    extension or the browser's MIME type) and size are checked when the transfer starts, before
    a byte of it is kept; then it is written (atomically) to a folder of its own under the
    sessions folder and decoded once: at least two frames, even width and height (tracking
-   needs them), its frame rate and count, and a sample of frames for finding the object.
-2. Its first frame becomes the scene's background: clicks on it place the four points of the
-   ramp board's top surface in the order of `clicks.ORDER` (upper near, upper far, foot far,
-   foot near; "near": the side edge closer to the camera; the upper points lie "Upper at (m)"
-   up the ramp, 0 meaning the upper corners). "Undo last point" and "Clear points", or edit
+   needs them), its frame rate and count, and a sample of frames for finding the object
+   (`galileo.clicks.sample_video`).
+2. "Scenario": what the video shows (the scenarios with a calibration). Its first frame becomes
+   the scene's background: clicks on it place the scenario's points in their order (the guide
+   line says which comes next and where it is). "Undo last point" and "Clear points", or edit
    "Points (px)" directly.
-3. The ramp's length, width and angle, the focal length (0: estimated from the four points),
-   the object's start (0: found in the video, `clicks.find_start_m`) and the target (kind,
-   distance from the foot, size). Every change rebuilds the scene (`clicks.scene_from_clicks`)
-   and redraws the frame with the projected ramp, ground grid, start band and target
-   (`clicks.draw_overlay`) and shows the reprojection error in pixels, or, in red, what is
-   wrong (and "Start inference" stays disabled).
+3. The scenario's numbers, one input each (`label (unit)`, the field's help as its hint; blank:
+   the field's "not given", found in the video or estimated). Every change solves the scene
+   again (`Calibration.solve`), redraws the frame with the scenario's overlay and shows the
+   reprojection error in pixels and what was estimated and found, or, in red, what is wrong (and
+   "Start inference" stays disabled). The library names the command line's flags; the panel
+   says its own fields' names instead (`for_panel`).
 4. "Start inference" writes scene.json next to the upload and hands (video, scene, name) to
    the caller's `start` in the main thread (app.py: tracking, a new session, the chains;
    progress shown in the panel). A GalileoError there is shown and the user may adjust and
@@ -56,8 +58,9 @@ from typing import Callable
 
 import numpy as np
 
+from galileo.clicks import Calibration, NotFound, calibrations, draw_clicks, parse_points, sample_video
 from galileo.errors import GalileoError
-from ui.viewer import _num, parse_numbers
+from galileo.video import VideoInfo
 
 MAX_UPLOAD_MB = 500
 MAX_UPLOAD_BYTES = MAX_UPLOAD_MB * 1024 * 1024   # read at run time (tests lower it)
@@ -69,10 +72,7 @@ UPLOADS_DIR = ".uploads"  # under the sessions folder: one temporary folder per 
 ERROR_COLOR = "#c92a2a"
 OK_COLOR = "#2b8a3e"
 BUSY_COLOR = "#1c7ed6"
-# the command line's flags in the library's messages, as this panel's fields
-FIELD_NAMES = {"--start-m": "Start (m)", "--focal-px": "Focal (px)", "--upper-at-m": "Upper at (m)",
-               "--ramp-length-m": "Length (m)", "--ramp-width-m": "Width (m)", "--angle-deg": "Angle (deg)",
-               "--target-distance-m": "Target dist (m)", "--target-size-m": "Target size (m)"}
+POINTS_FIELD = "Points (px)"
 
 
 # -- pure helpers (tested without a browser) -----------------------------------------------------
@@ -106,25 +106,20 @@ def safe_name(filename: str) -> str:
     return safe or "video"
 
 
-# a scene file's field paths, as this panel says them (a scene check the clicks' own did not catch)
-SCENE_WORDS = {"objects[0]": "the object", "objects[1]": "the target", "length_m": "Length (m)",
-               "width_m": "Width (m)", "angle_deg": "Angle (deg)"}
-
-
-def for_panel(message: str) -> str:
-    """A library message with the command line's flags, and a scene file's field paths, named
-    as this panel's fields."""
-    for flag, name in FIELD_NAMES.items():
-        message = message.replace(f"give {flag}", f"enter {name}").replace(flag, name)
-    for path, words in SCENE_WORDS.items():
-        message = message.replace(path, words)
+def for_panel(message: str, cal: Calibration) -> str:
+    """A library message with the command line's flags (the calibration's fields', --points)
+    named as this panel's fields ("give --start-m" reads "enter Start (m)")."""
+    names = {f.flag: f.title for f in cal.fields}
+    names["--points"] = POINTS_FIELD
+    for flag in sorted(names, key=len, reverse=True):   # (--target-size-m before --target)
+        message = message.replace(f"give {flag}", f"enter {names[flag]}").replace(flag, names[flag])
     return message
 
 
 @dataclass(frozen=True)
 class Clip:
     """An uploaded video that decodes: where it is, its name as uploaded, its first frame and
-    a sample of its frames (for finding the object's start)."""
+    a sample of its frames (where the solvers find the objects)."""
     path: Path
     name: str
     first: np.ndarray
@@ -134,36 +129,26 @@ class Clip:
     fps: float
     n_frames: int
 
+    @property
+    def info(self) -> VideoInfo:
+        return VideoInfo(self.width_px, self.height_px, self.fps, self.n_frames)
+
 
 def probe_video(path: str | Path, name: str | None = None) -> Clip:
     """Decode the whole video once (a GalileoError, naming the file as uploaded, if it does not
-    decode): the first frame, the frame count, and the sample `find_start_m` reads."""
-    from galileo.scenarios.ramp.clicks import sample_frames
-    from galileo.video import _stream_info, read_frames
-
+    decode): the first frame, the frame count, and the sample the solvers read."""
     path = Path(path)
     name = name or path.name
-    try:
-        fps, width, height = _stream_info(path)
-        first: list[np.ndarray] = []
-
-        def frames():
-            for f in read_frames(path):
-                if not first:
-                    first.append(f)
-                yield f
-
-        kept, n, _ = sample_frames(frames())
-    except GalileoError as e:
-        raise GalileoError(str(e).replace(str(path), name)) from None
+    info, first, kept = sample_video(path, name)
+    n = info.n_frames
     if n < MIN_FRAMES:
         raise GalileoError(f"{name} is not a video this app can use: {n} decodable frame{'s' * (n != 1)}, "
                            f"need at least {MIN_FRAMES} to see motion")
-    h, w = first[0].shape[:2]
+    w, h = info.width_px, info.height_px
     if w % 2 or h % 2:
         raise GalileoError(f"{name} is {w}x{h}: tracking needs an even width and height (re-encode it, e.g. "
                            "ffmpeg -vf scale=trunc(iw/2)*2:trunc(ih/2)*2)")
-    return Clip(path, name, first[0][..., :3], kept, w, h, float(fps), n)
+    return Clip(path, name, first, kept, w, h, info.fps, n)
 
 
 def letterbox(width: int, height: int, aspect: float | None) -> tuple[int, int, int, int]:
@@ -183,89 +168,23 @@ def display_scale(width: int, height: int) -> int:
     return max(1, math.ceil(DISPLAY_MIN_PX / max(width, height)))
 
 
-def parse_points(text: str) -> list[tuple[float, float]]:
-    """'u,v u,v ...' (up to four points, pixels) -> [(u, v), ...]; a GalileoError if malformed."""
-    parts = [p for p in re.split(r"[\s;]+", text.strip()) if p]
-    pts = []
-    for p in parts:
-        uv = p.strip("()[]").split(",")
-        try:
-            u, v = (float(x) for x in uv)
-        except ValueError:
-            raise GalileoError(f"Points (px): expected up to four u,v pairs like '120.5,88 300,90', got {p!r}") from None
-        if not (math.isfinite(u) and math.isfinite(v)):
-            raise GalileoError(f"Points (px): {p!r} is not a finite point")
-        pts.append((u, v))
-    if len(pts) > 4:
-        raise GalileoError(f"Points (px): four points at most, got {len(pts)}")
-    return pts
-
-
 def format_points(points) -> str:
     return " ".join(f"{u:.1f},{v:.1f}" for u, v in points)
 
 
-def parse_size(text: str) -> tuple[float, float, float] | None:
-    """'x, y, z' metres -> a tuple; blank -> None (the target kind's own size)."""
-    if not text.strip():
-        return None
+def solve(clip: Clip, points, cal: Calibration, numbers: dict):
+    """(scene, reprojection error px) for the clip, the points clicked and the numbers (name ->
+    text, as typed); a GalileoError (one line, in the panel's words) if they do not make a
+    scene, NotFound (with its scene) if only a quantity to be found in the video is missing."""
+    n = len(cal.points)
+    if len(points) != n:
+        raise GalileoError(f"click {n - len(points)} more point{'s' * (n - len(points) != 1)} on the frame")
     try:
-        vals = [float(x) for x in text.replace(",", " ").split()]
-    except ValueError:
-        vals = []
-    if len(vals) != 3:
-        raise GalileoError(f"Target size (m): expected three numbers x, y, z (blank: the kind's own), got {text!r}")
-    return tuple(vals)
-
-
-@dataclass(frozen=True)
-class Numbers:
-    """The panel's numbers (0 meaning: the default named in its hint)."""
-    length_m: float
-    width_m: float
-    angle_deg: float
-    upper_at_m: float = 0.0       # 0 (or the length): the upper corners
-    focal_px: float = 0.0         # 0: estimated
-    start_m: float = 0.0          # 0: found in the video
-    target: str = "none"
-    target_distance_m: float = 0.1
-    target_size: str = ""
-
-
-class StartNotFound(GalileoError):
-    """The scene is fine but the object's start was not found: `scene` has the paper's start."""
-
-    def __init__(self, message: str, scene):
-        super().__init__(message)
-        self.scene = scene
-
-
-def solve(clip: Clip, points, nums: Numbers):
-    """(scene, reprojection error px, start found?) for the clip, the four points and the
-    numbers; a GalileoError (one line, in the panel's words) if they do not make a scene,
-    StartNotFound if only the object's start is missing."""
-    from galileo.scenarios.ramp.clicks import find_start_m, scene_from_clicks
-
-    if len(points) != 4:
-        raise GalileoError(f"click {4 - len(points)} more point{'s' * (len(points) != 3)} on the frame")
-    try:
-        size = parse_size(nums.target_size) if nums.target != "none" else None
-        scene, err = scene_from_clicks(
-            np.asarray(points, float), width_px=clip.width_px, height_px=clip.height_px, fps=clip.fps,
-            n_frames=clip.n_frames, length_m=nums.length_m, width_m=nums.width_m, angle_deg=nums.angle_deg,
-            upper_at_m=nums.upper_at_m or None, focal_px=nums.focal_px or None, start_m=nums.start_m or None,
-            target=nums.target, target_distance_m=nums.target_distance_m if nums.target != "none" else None,
-            target_size_m=size)
+        return cal.solve(np.asarray(points, float), numbers, clip.info, clip.frames)
+    except NotFound as e:
+        raise NotFound(for_panel(str(e), cal), e.scene) from None
     except GalileoError as e:
-        raise GalileoError(for_panel(str(e))) from None
-    found = not nums.start_m
-    if found:
-        try:
-            s = find_start_m(clip.frames, scene)
-        except GalileoError as e:
-            raise StartNotFound(for_panel(str(e)), scene) from None
-        scene = replace(scene, start_units=s / scene.unit_m)
-    return scene, err, found
+        raise GalileoError(for_panel(str(e), cal)) from None
 
 
 LINE_STYLE = "padding:0.15em 0.75em;font-size:0.875em"
@@ -280,12 +199,10 @@ def _line(text: str, cls: str, color: str | None = None) -> str:
     return f'<div class="{cls}" style="{LINE_STYLE}{f";color:{color}" if color else ""}">{html.escape(text)}</div>'
 
 
-def draw(clip: Clip, points, scene=None) -> tuple[np.ndarray, int]:
-    """(picture, its scale): the first frame enlarged by `display_scale`, with the scene's
-    overlay when there is one, else the clicks so far joined in their order (red)."""
+def draw(clip: Clip, points, cal: Calibration, scene=None) -> tuple[np.ndarray, int]:
+    """(picture, its scale): the first frame enlarged by `display_scale`, with the scenario's
+    overlay of the scene when there is one, else the clicks so far (red, numbered)."""
     import cv2
-
-    from galileo.scenarios.ramp.clicks import draw_overlay
 
     s = display_scale(clip.width_px, clip.height_px)
     frame = clip.first if s == 1 else cv2.resize(clip.first, (clip.width_px * s, clip.height_px * s),
@@ -294,18 +211,9 @@ def draw(clip: Clip, points, scene=None) -> tuple[np.ndarray, int]:
     if scene is not None:
         cam = scene.camera
         big = replace(cam, K=np.diag([s, s, 1.0]) @ cam.K, width_px=cam.width_px * s, height_px=cam.height_px * s)
-        return draw_overlay(frame, replace(scene, camera=big), pts), s
+        return cal.draw_overlay(frame, replace(scene, camera=big), pts), s
     img = np.ascontiguousarray(frame).copy()
-    h, w = img.shape[:2]
-    lw = max(1, round(max(w, h) / 400))
-    if len(pts) >= 2:
-        cv2.polylines(img, [np.round(pts * 16).astype(np.int32).reshape(-1, 1, 2)], len(pts) == 4, (230, 30, 30),
-                      lw, cv2.LINE_AA, shift=4)
-    for i, (u, v) in enumerate(pts):
-        c = (int(round(u)), int(round(v)))
-        cv2.circle(img, c, 3 * lw + 2, (230, 30, 30), lw, cv2.LINE_AA)
-        cv2.putText(img, str(i + 1), (c[0] + 4 * lw, c[1] - 4 * lw), cv2.FONT_HERSHEY_SIMPLEX, 0.4 * lw,
-                    (230, 30, 30), lw, cv2.LINE_AA)
+    draw_clicks(img, pts)
     return img, s
 
 
@@ -313,8 +221,7 @@ def placeholder(width: int = 960, height: int = 540) -> np.ndarray:
     import cv2
 
     img = np.full((height, width, 3), 60, np.uint8)
-    for i, text in enumerate(("Upload a video of an object sliding down a ramp",
-                              "(the \"Upload video\" button in the panel)")):
+    for i, text in enumerate(("Upload your video", "(the \"Upload video\" button in the panel)")):
         cv2.putText(img, text, (40, height // 2 - 20 + 44 * i), cv2.FONT_HERSHEY_SIMPLEX, 0.9, (225, 225, 225), 2,
                     cv2.LINE_AA)
     return img
@@ -367,9 +274,17 @@ class Calibrator:
 
     def __init__(self, host: str, port: int, sessions: str | Path,
                  start: Callable[[Path, Path, str, Callable[[str], None]], object], *, name: str | None = None,
-                 max_bytes: int | None = None):
+                 max_bytes: int | None = None, scenario: str | None = None):
         import viser
 
+        self.calibrations = calibrations()
+        if not self.calibrations:
+            raise GalileoError("no scenario can be calibrated from a video (none declares a calibration)")
+        if scenario is not None and scenario not in self.calibrations:
+            raise GalileoError(f"the {scenario} scenario has no own-video calibration; these have: "
+                               f"{', '.join(self.calibrations)}")
+        self.scenario = scenario or next(iter(self.calibrations))
+        self._texts = {n: {f.name: f.text(f.default) for f in c.fields} for n, c in self.calibrations.items()}
         self._start = start
         self._name = name
         self._max_bytes = max_bytes
@@ -380,7 +295,7 @@ class Calibrator:
         self._requests: queue.Queue = queue.Queue()
         self.clip: Clip | None = None
         self.points: list[tuple[float, float]] = []
-        self.solved = None            # (scene, err, start found) for the current points and numbers
+        self.solved = None            # (scene, err) for the current points and numbers
         self.busy = False             # a session is being started
         self._generation = 0          # uploads so far (a late probe of an older upload is dropped)
         self._picture: tuple[np.ndarray, int] = (placeholder(), 1)
@@ -403,80 +318,43 @@ class Calibrator:
         return MAX_UPLOAD_BYTES if self._max_bytes is None else self._max_bytes
 
     # -- GUI --------------------------------------------------------------------------------------
+    @property
+    def cal(self) -> Calibration:
+        return self.calibrations[self.scenario]
+
     def _build_gui(self) -> None:
         import viser
 
-        from galileo.scenarios.ramp.clicks import DEFAULT_TARGET_DISTANCE_M
-        from galileo.scenarios.ramp.scene import TARGET_DEFAULTS, Ramp
-
         g = self.server.gui
         g.main_panel.dock_right()      # the canvas (the frame) beside the panel, not under it
-        g.add_markdown(f"### Your video\nOne object sliding down a ramp; at most {_size(self._cap())}. Click the "
-                       "ramp's four points on the frame, enter its size, check the overlay, start.")
+        g.add_markdown(f"### Your video\nAt most {_size(self._cap())}: "
+                       + "; or ".join(c.subject for c in self.calibrations.values())
+                       + ". Choose its scenario, click its points on the frame, enter its numbers, check the overlay, "
+                         "start.")
         self.upload = self._add_upload_button()
         self.file_line = g.add_html(_line("No video yet.", "galileo-upload"))
         self.result = g.add_html(_line("", "galileo-calib"))
         self.start_button = g.add_button("Start inference", disabled=True, color="green", icon=viser.Icon.PLAYER_PLAY)
         self.progress = g.add_html(_line("", "galileo-progress"))
-        ramp = Ramp()
-        with g.add_folder("Ramp points (click the frame)"):
+        self.scenario_input = g.add_dropdown("Scenario", tuple(self.calibrations), initial_value=self.scenario,
+                                             hint="what the video shows: its points and numbers follow")
+        with g.add_folder("Points (click the frame)"):
             self.guide = g.add_html("")
-            self.points_text = g.add_text("Points (px)", "", hint="u,v of the points clicked, in order (upper near, "
-                                                                  "upper far, foot far, foot near); editable")
+            self.points_text = g.add_text(POINTS_FIELD, "", hint="u,v of the points clicked, in order; editable")
             self.undo = g.add_button("Undo last point", icon=viser.Icon.ARROW_BACK_UP)
             self.clear = g.add_button("Clear points", icon=viser.Icon.TRASH)
-        with g.add_folder("Ramp"):
-            self.length = g.add_text("Length (m)", _num(ramp.length_m),
-                                     hint="the ramp board's length along the slope, foot to top")
-            self.width = g.add_text("Width (m)", _num(ramp.width_m), hint="the board's width")
-            self.angle = g.add_text("Angle (deg)", _num(ramp.angle_deg),
-                                    hint="the ramp's angle to the ground")
-            self.upper_at = g.add_text("Upper at (m)", _num(ramp.length_m),
-                                       hint="how far up the ramp points 1 and 2 are, from the foot along the side "
-                                            "edges; the ramp's length (it follows the length until edited): the "
-                                            "upper corners")
-            self.focal = g.add_text("Focal (px)", _num(0.0),
-                                    hint="the camera's focal length in pixels; 0: estimated from the four points "
-                                         "(principal point at the image centre, square pixels)")
-        with g.add_folder("Object and target"):
-            self.start_m = g.add_text("Start (m)", _num(0.0),
-                                      hint="from the ramp's foot up to the object's centre at the start; 0: found "
-                                           "in the video (where the first frame differs from the later frames on "
-                                           "the ramp)")
-            self.target = g.add_dropdown("Target", ("none", "cardboard", "foam"), initial_value="none",
-                                         hint="the box the object slides into, if there is one")
-            self.target_distance = g.add_text("Target dist (m)", _num(DEFAULT_TARGET_DISTANCE_M),
-                                              visible=False, hint="from the ramp's foot to the target's near face")
-            self.target_size = g.add_text("Target size (m)", "", visible=False,
-                                          hint="x, y, z in metres (along the ground, across, up); blank: the kind's "
-                                               "usual size")
-        self._upper_follows = True     # "Upper at" is the ramp's length until edited
+        self.numbers_folder = None
+        self.inputs: dict = {}        # field name -> its input
+        self._add_inputs()
 
-        for h in (self.width, self.angle, self.focal, self.start_m, self.target_distance, self.target_size):
-            h.on_update(lambda _e: self._recompute())
-
-        @self.length.on_update
+        @self.scenario_input.on_update
         def _(_e):
             with self._lock:
-                if self._upper_follows and self.upper_at.value != self.length.value:
-                    self.upper_at.value = self.length.value     # (its callback recomputes)
-                else:
-                    self._recompute()
-
-        @self.upper_at.on_update
-        def _(e):
-            with self._lock:
-                if e.client is not None:
-                    self._upper_follows = self.upper_at.value == self.length.value
-                self._recompute()
-
-        @self.target.on_update
-        def _(_e):
-            with self._lock:
-                kind = self.target.value
-                self.target_distance.visible = self.target_size.visible = kind != "none"
-                if kind in TARGET_DEFAULTS:   # the kind's usual size, to edit
-                    self.target_size.value = ", ".join(f"{v:g}" for v in TARGET_DEFAULTS[kind][0].size_m)
+                if self.scenario_input.value == self.scenario:
+                    return
+                self._texts[self.scenario] = self._numbers()
+                self.scenario, self.points = self.scenario_input.value, []
+                self._add_inputs()
                 self._recompute()
 
         @self.points_text.on_update
@@ -485,7 +363,7 @@ class Calibrator:
                 return
             with self._lock:
                 try:
-                    pts = parse_points(self.points_text.value)
+                    pts = parse_points(self.points_text.value, len(self.cal.points), POINTS_FIELD)
                 except GalileoError as err:
                     self._set_result(_red(str(err), "galileo-calib"), ok=False)
                     return
@@ -507,6 +385,23 @@ class Calibrator:
         self.start_button.on_click(self._on_start)
         self._recompute()
 
+    def _add_inputs(self) -> None:
+        """The chosen scenario's numbers, one input each (a choice: a dropdown), in a folder of
+        their own (the last one: it is replaced when the scenario changes)."""
+        g = self.server.gui
+        if self.numbers_folder is not None:
+            self.numbers_folder.remove()
+        texts = self._texts[self.scenario]
+        self.inputs = {}
+        with g.add_folder(f"Numbers ({self.scenario})") as self.numbers_folder:
+            for f in self.cal.fields:
+                if f.choices:
+                    h = g.add_dropdown(f.title, f.choices, initial_value=texts[f.name], hint=f.help)
+                else:
+                    h = g.add_text(f.title, texts[f.name], hint=f.help)
+                h.on_update(lambda _e: self._recompute())
+                self.inputs[f.name] = h
+
     def _add_upload_button(self):
         import viser
 
@@ -517,18 +412,10 @@ class Calibrator:
         b.on_upload(self._on_upload)
         return b
 
-    def _numbers(self) -> Numbers:
-        """The fields' numbers, read exactly as typed (text fields: a browser's number input
-        rewrites what it cannot parse); a GalileoError naming the field otherwise."""
-        def num(h):
-            try:
-                return parse_numbers(h.value, 1, h.label)[0]
-            except ValueError as e:
-                raise GalileoError(str(e)) from None
-
-        return Numbers(num(self.length), num(self.width), num(self.angle), num(self.upper_at), num(self.focal),
-                       num(self.start_m), str(self.target.value), num(self.target_distance),
-                       str(self.target_size.value))
+    def _numbers(self) -> dict:
+        """The inputs' values, as typed (text fields: a browser's number input rewrites what it
+        cannot parse); each is checked by its field when the scene is solved."""
+        return {name: str(h.value) for name, h in self.inputs.items()}
 
     def _set_result(self, content: str, ok: bool) -> None:
         self.result.content = content
@@ -549,39 +436,30 @@ class Calibrator:
     # -- state -> picture ------------------------------------------------------------------------------
     def _recompute(self) -> None:
         with self._lock:
-            clip, pts = self.clip, list(self.points)
-            n = len(pts)
+            clip, pts, cal = self.clip, list(self.points), self.cal
+            n, total = len(pts), len(cal.points)
             self.points_text.value = format_points(pts)
             if clip is None:
                 self.guide.content = _line("Upload a video first.", "galileo-guide")
                 self.solved = None
                 self._set_result(_line("", "galileo-calib"), ok=False)
                 return
-            from galileo.scenarios.ramp.clicks import ORDER
-
-            self.guide.content = _line(f"Click point {n + 1} of 4: {ORDER[n]}" if n < 4 else
-                                       "All four points placed (Undo or Clear to move them).", "galileo-guide")
+            point = cal.points[n] if n < total else None
+            self.guide.content = _line(f"Click point {n + 1} of {total}: {point.name} ({point.hint})" if point else
+                                       f"All {total} points placed (Undo or Clear to move them).", "galileo-guide")
+            numbers = self._numbers()
             try:
-                numbers = self._numbers()
-                scene, err, found = solve(clip, pts, numbers)
+                scene, err = solve(clip, pts, cal, numbers)
             except GalileoError as e:
                 self.solved = None
-                if n < 4:
-                    self._set_result(_line(str(e), "galileo-calib"), ok=False)
-                else:
-                    self._set_result(_red(str(e), "galileo-calib"), ok=False)
-                # the ramp is still worth seeing when only the start is missing
-                self._picture = draw(clip, pts, e.scene if isinstance(e, StartNotFound) else None)
+                self._set_result((_line if n < total else _red)(str(e), "galileo-calib"), ok=False)
+                # the scene is still worth seeing when only what is found in the video is missing
+                self._picture = draw(clip, pts, cal, e.scene if isinstance(e, NotFound) else None)
             else:
-                self.solved = (scene, err, found)
-                cam = scene.camera
-                start = scene.start_distance_m()
-                text = (f"reprojection error {err:.2f} px; focal {cam.K[0, 0]:.0f} px"
-                        f"{' (estimated)' if not numbers.focal_px else ''}; camera "
-                        f"{np.linalg.norm(cam.position_in_world):.2f} m from the ramp's foot; start {start:.3f} m "
-                        f"up the ramp{' (found)' if found else ''}")
+                self.solved = (scene, err)
+                text = f"reprojection error {err:.2f} px; {for_panel(cal.describe(scene, numbers), cal)}"
                 self._set_result(_line(text, "galileo-calib", OK_COLOR), ok=True)
-                self._picture = draw(clip, pts, scene)
+                self._picture = draw(clip, pts, cal, scene)
             self._show()
 
     def _show(self, client=None) -> None:
@@ -634,9 +512,9 @@ class Calibrator:
                 self._refuse_click(event.client_id, f"that click ({u:.0f}, {v:.0f}) is outside the {w}x{h} frame: "
                                                     "click on the picture")
                 return
-            if len(self.points) >= 4:
-                self._refuse_click(event.client_id, "four points are placed: Undo last point or Clear points to "
-                                                    "place one again")
+            if len(self.points) >= len(self.cal.points):
+                self._refuse_click(event.client_id, f"all {len(self.cal.points)} points are placed: Undo last point "
+                                                    "or Clear points to place one again")
                 return
             self.points.append((u, v))
             self._recompute()
@@ -709,7 +587,7 @@ class Calibrator:
             if self.busy or self.solved is None or self.clip is None:
                 return
             self.busy = True
-            for h in (self.start_button, self.undo, self.clear):
+            for h in (self.start_button, self.undo, self.clear, self.scenario_input):
                 h.disabled = True
             if self.upload is not None:
                 self.upload.disabled = True
@@ -718,7 +596,7 @@ class Calibrator:
     def _ready_again(self) -> None:
         with self._lock:
             self.busy = False
-            for h in (self.undo, self.clear):
+            for h in (self.undo, self.clear, self.scenario_input):
                 h.disabled = False
             if self.upload is not None:
                 self.upload.disabled = False
@@ -771,7 +649,7 @@ class Calibrator:
             scene.save(scene_path)
             result = self._start(clip.path, scene_path, name, say)
         except GalileoError as e:
-            failure = for_panel(str(e))
+            failure = for_panel(str(e), self.cal)
         except Exception as e:   # noqa: BLE001 - shown in the page, the traceback in the terminal
             traceback.print_exc()
             failure = f"could not start: {type(e).__name__}: {e}"
@@ -821,9 +699,11 @@ def _wait_until_free(host: str, port: int, timeout_s: float = 15.0) -> None:
         time.sleep(0.1)
 
 
-def calibrate_in_browser(host: str, port: int, sessions: str | Path, start, *, name: str | None = None):
-    """Serve the upload-and-calibrate page until a session has started; `start`'s result."""
-    cal = Calibrator(host, port, sessions, start, name=name)
+def calibrate_in_browser(host: str, port: int, sessions: str | Path, start, *, name: str | None = None,
+                         scenario: str | None = None):
+    """Serve the upload-and-calibrate page until a session has started; `start`'s result.
+    `scenario`: the one chosen at first (default: the first that has a calibration)."""
+    cal = Calibrator(host, port, sessions, start, name=name, scenario=scenario)
     try:
         return cal.wait()
     finally:

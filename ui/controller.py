@@ -91,6 +91,7 @@ import numpy as np
 from galileo import registry
 from galileo.datatypes import Tracks
 from galileo.errors import GalileoError
+from galileo.joint import tracks_from_json, tracks_to_json
 from galileo.latents import as_number, by_name, check_bounds, check_noise, check_widths
 from galileo.mcmc import chain_rng, move_code
 from galileo.results import MIN_ESS, RHAT_TARGET, burn_in, convergence, derived_summaries
@@ -283,7 +284,8 @@ class Controller:
         self._session_lock = session_lock or sess.SessionLock(self.session_dir)
         try:
             sess.write_static(self.session_dir, self._scene_json, self._tracks_json)
-            self._session_lock.keep(sess.VIDEO_FILE)
+            for name in sess.video_files(self.session_dir):
+                self._session_lock.keep(name)
             self.save()
             self._start_pool()
         except BaseException:
@@ -302,7 +304,7 @@ class Controller:
         self.workers = max(1, int(workers or os.cpu_count() or 1))
         self.session_dir = session_dir
         self.save_every_s = float(save_every_s)
-        self._scene_json, self._tracks_json = scene.to_json(), tracks.to_json()
+        self._scene_json, self._tracks_json = scene.to_json(), tracks_to_json(tracks)
         self._problem = Problem.of(scene, tracks)
         self._settings = settings
         self._chains: dict[int, _Chain] = {}
@@ -1270,7 +1272,7 @@ class Controller:
         path = folder / sess.TRACKS_FILE
         tracks_json = sess.read_json_file(folder, sess.TRACKS_FILE)
         with sess.reading(path):
-            tracks = Tracks.from_json(tracks_json)
+            tracks = tracks_from_json(tracks_json)
             latents = scenario.latents(scenario.prepare(scene, tracks))
             names = tuple(lat.name for lat in latents)
         path = folder / sess.SETTINGS_FILE
@@ -1388,7 +1390,8 @@ class Controller:
         self._dirty = False
         self._last_save = time.monotonic()
         self._session_lock = lock
-        lock.keep(sess.VIDEO_FILE)
+        for name in sess.video_files(folder):
+            lock.keep(name)
         self._start_pool()
         return self
 

@@ -22,6 +22,9 @@ Entity layout (timelines in brackets):
                                it change; on "frame" the latest MAP moves)
     sim/selected/<object>      LineStrips3D (static) + Points3D [frame]: the sample selected in
                                the viewer (`log_selected`, replaced on each call)
+    sim/<kind>/connectors/<connector>   LineStrips3D [frame]: the drawing's connectors (a spring,
+                               a string; `Drawing.connectors`, known from `log_scene`) where
+                               that motion puts their anchors, beside its objects
 
 Video: the browser's WebCodecs decodes the H.264 asset, and a browser offers WebCodecs only
 in a secure context (https, or http on localhost). The web viewer served on a non-loopback
@@ -63,6 +66,8 @@ os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error,re
                                   "re_log_channel=error")
 import rerun as rr  # noqa: E402
 import rerun.blueprint as rrb
+
+from galileo.drawing import connector_points, frame_pose  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -296,6 +301,7 @@ class RerunLogger:
         self._named: set[str] = set()             # series given a legend name
         self._last_convergence: tuple | None = None   # what log_convergence logged last
         self._closed = False
+        self._connectors: tuple = ()              # the drawing's (log_scene), drawn with each motion
         self._before_close: list = []             # callables run first by close() (a feed's thread)
         self._web: _WebViewer | None = None
         # frames as JPEG images, not the H.264 asset: a browser opening the web viewer from
@@ -532,9 +538,11 @@ class RerunLogger:
 
     def log_scene(self, drawing) -> None:
         """The scene's static geometry (`Scenario.drawing(scene).static`: the ramp, the tank, the
-        water) at scene/<name>, static, so the simulation view shows where the paths run."""
+        water) at scene/<name>, static, so the simulation view shows where the paths run; its
+        connectors are logged with every simulated motion from then on (`log_simulation`)."""
         if not self.enabled:
             return
+        self._connectors = tuple(drawing.connectors)
         self._at()
         for m in drawing.static:
             rgba = [*m.color, int(round(255 * float(m.opacity)))]
@@ -694,6 +702,13 @@ class RerunLogger:
             lengths = ok.astype(int)
             self.stream.send_columns(entity, indexes=[rr.TimeColumn("frame", sequence=np.arange(n))],
                                      columns=rr.Points3D.columns(positions=pos[ok]).partition(lengths))
+        for c in self._connectors:
+            entity = f"sim/{kind}/connectors/{_part(c.name)}"
+            self.stream.log(entity, rr.LineStrips3D.from_fields(colors=[c.color],
+                                                                radii=rr.Radius.ui_points(c.width_px / 2)), static=True)
+            strips = [connector_points(c, *frame_pose(traj, f)) for f in range(n)]
+            self.stream.send_columns(entity, indexes=[rr.TimeColumn("frame", sequence=np.arange(n))],
+                                     columns=rr.LineStrips3D.columns(strips=strips).partition([1] * n))
 
     def log_selected(self, traj, chain: int | None = None, index: int | None = None) -> None:
         """The sample the viewer shows (its re-simulated Trajectory) at sim/selected/<object>:

@@ -68,6 +68,22 @@ CHAINS_FILE = "chains.json"
 RECORD_FILE = "record.npz"
 FILES = (SCENE_FILE, TRACKS_FILE, SETTINGS_FILE, EVENTS_FILE, CHAINS_FILE, RECORD_FILE)
 VIDEO_FILE = "video.mp4"   # the app's copy of the video (kept open by the lock, for `recover`)
+MAX_VIDEOS = 99            # a problem's videos in one session: video.mp4, video-2.mp4, ...
+
+
+def video_file(v: int) -> str:
+    """The session's copy of video v (0-based) of its problem: video.mp4, video-2.mp4, ..."""
+    return VIDEO_FILE if v == 0 else f"video-{v + 1}.mp4"
+
+
+def video_files(folder: Path) -> list[str]:
+    """The session's videos in their problem's order (video.mp4, then video-2.mp4, ... while they exist)."""
+    out = []
+    for v in range(MAX_VIDEOS):
+        if not (Path(folder) / video_file(v)).is_file():
+            break
+        out.append(video_file(v))
+    return out
 LOCK_FILE = ".lock"
 
 

@@ -6,10 +6,10 @@ process) with the scenario's likelihood (`Likelihood.motion`), so the 3-D scene 
 very motion that sample was scored on (same phases, same rest rule).
 
 * 3-D: what the scenario draws (`Scenario.drawing`: for the ramp, the ground grid, the ramp
-  and the objects with their tracked shapes) posed from the selected sample's motion at
-  the current frame; the observed tracks (orange) and the
-  simulated trajectory (blue) as polylines; the video camera as a frustum showing the
-  current frame.
+  and the objects with their tracked shapes; connectors such as a spring between their
+  anchors) posed from the selected sample's motion at the current frame; the observed
+  tracks (orange) and the simulated trajectory (blue) as polylines; the video camera as a
+  frustum showing the current frame.
 * "Camera view" snaps each browser's camera to the video camera's pose and field of view
   and puts the frame behind the scene, so simulation and video overlap (exactly when the
   browser's viewport has the video's aspect ratio, 4:3; otherwise the background image is
@@ -38,7 +38,9 @@ from viser import uplot
 from galileo import registry
 from galileo.camera import Camera
 from galileo.datatypes import Tracks, Trajectory
+from galileo.drawing import connector_points, frame_pose
 from galileo.errors import GalileoError
+from galileo.joint import JointScene, tracks_list
 from galileo.latents import as_number, check_bounds, check_noise, check_widths
 from galileo.results import MIN_KEPT_DRAWS, burn_in
 
@@ -401,13 +403,19 @@ class Viewer:
                  host: str = "127.0.0.1", port: int = 8080, target_sweeps: int = 75):
         self.ctrl = controller
         self.scene = scene
-        self.tracks = tracks
-        self.video = video_rgb
-        self.n_frames = min(len(video_rgb), tracks.n_frames)
-        self.fps = tracks.fps
+        # a problem of several videos (galileo.joint): tracks and video_rgb are lists, one per video;
+        # the viewer shows one video at a time (the Video folder's chooser)
+        self._joint = isinstance(scene, JointScene)
+        self._scenes = list(scene.scenes) if self._joint else [scene]
+        self._all_tracks = tracks_list(tracks)
+        self._videos = list(video_rgb) if self._joint else [video_rgb]
+        if not (len(self._scenes) == len(self._all_tracks) == len(self._videos)):
+            raise ValueError("a problem's viewer needs one scene, tracks and video per video")
         self.target_sweeps = target_sweeps
         self.scenario = registry.of(scene)
+        self._view_scenario = getattr(self.scenario, "base", self.scenario)   # one video's scenario
         self.model = self.scenario.likelihood(scene, tracks, controller.settings.noise)   # draws its `motion`
+        self._use_video(0)
         self.traj: Trajectory | None = None
         self.resimulations = 0
         self.last_resim_s = 0.0
@@ -452,28 +460,85 @@ class Viewer:
         for t in self._threads:
             t.start()
 
+    def _use_video(self, v: int) -> None:
+        """Show video v of the problem (its frames, tracks, scene; the motion it scored)."""
+        self.video_index = int(v)
+        self.tracks = self._all_tracks[v]
+        self.video = self._videos[v]
+        self.view_scene = self._scenes[v]
+        self.n_frames = min(len(self.video), self.tracks.n_frames)
+        self.fps = self.tracks.fps
+
+    def _motion(self, position) -> Trajectory:
+        """The motion the shown video scored at `position`."""
+        if self._joint:
+            return self.model.motion(position, video=self.video_index)
+        return self.model.motion(position)
+
+    def show_video(self, v: int) -> None:
+        """Switch the viewer to video v of a problem of several: its frames, its world (static
+        meshes, objects, connectors, observed tracks, camera) and the selected sample's motion in it."""
+        if not 0 <= v < len(self._videos):
+            raise ValueError(f"video {v + 1}: the problem has {len(self._videos)}")
+        with self._lock, self.server.atomic():
+            for h in self._world_handles + self.sim_lines + list(self._frustums.values()):
+                h.remove()
+            self.sim_lines, self._frustums = [], {}
+            self._use_video(v)
+            self._build_world()
+            self._set_opacity(float(self.opacity_slider.value))
+            self.frame = min(self.frame, self.n_frames - 1)
+            self.frame_slider.max = self.n_frames - 1
+            self.frame_slider.value = self.frame
+            clients = self.server.get_clients()
+            for cid, client in clients.items():
+                if self.camera is not None and cid not in self._camera_clients:
+                    self._add_frustum(client)
+                elif cid in self._camera_clients:
+                    if self.camera is None:
+                        self._camera_clients.pop(cid)
+                        client.scene.set_background_image(None)
+                    else:
+                        self._send_camera_view(client)
+            self.select_sample(self.selection.chain, self.selection.index, force=True)
+
     # -- 3-D scene -------------------------------------------------------------------------
     def _build_scene(self) -> None:
-        s, sc = self.server.scene, self.scene
-        s.set_up_direction("+z")
-        drawing = self.scenario.drawing(sc)
-        if drawing.ground_z_m is not None:
-            s.add_grid("/ground", width=3.0, height=2.0, plane="xy", position=(0.0, 0.0, drawing.ground_z_m))
-        for m in drawing.static:
-            s.add_mesh_simple(f"/{m.name}", m.vertices, m.faces, color=m.color, opacity=m.opacity)
-        self.object_handles = [s.add_mesh_simple(f"/objects/{m.name}", m.vertices, m.faces, color=m.color,
-                                                 opacity=m.opacity) for m in drawing.objects]
-        for o in self.tracks.objects:
-            s.add_line_segments(f"/tracks/observed/{o.name}", _segments(o.position_m), (255, 140, 0),
-                                thickness=3, thickness_units="screen")
-        self.camera = self.scenario.camera(sc)   # None: no video camera, so no frustum and no camera view
+        self.server.scene.set_up_direction("+z")
         self._frustums: dict[int, object] = {}        # per browser (client id), while in free view
         self._camera_clients: dict[int, dict] = {}    # browsers in the camera view: their earlier view
         self.sim_lines = []
+        drawing = self._build_world()
         self._first_view(drawing)
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(lambda c: (self._frustums.pop(c.client_id, None),
                                                     self._camera_clients.pop(c.client_id, None)))
+
+    def _build_world(self):
+        """The shown video's world: static meshes, objects, connectors, observed tracks, its camera
+        (the handles kept to remove on a switch of video); its drawing."""
+        s, sc = self.server.scene, self.view_scene
+        drawing = self._view_scenario.drawing(sc)
+        self._world_handles = []
+        if drawing.ground_z_m is not None:
+            self._world_handles.append(s.add_grid("/ground", width=3.0, height=2.0, plane="xy",
+                                                  position=(0.0, 0.0, drawing.ground_z_m)))
+        for m in drawing.static:
+            self._world_handles.append(s.add_mesh_simple(f"/{m.name}", m.vertices, m.faces, color=m.color,
+                                                         opacity=m.opacity))
+        self.object_handles = [s.add_mesh_simple(f"/objects/{m.name}", m.vertices, m.faces, color=m.color,
+                                                 opacity=m.opacity) for m in drawing.objects]
+        # connectors (springs, strings): one line-segments handle each, its points moved per frame
+        self.connectors = tuple(drawing.connectors)
+        self.connector_handles = [s.add_line_segments(f"/connectors/{c.name}", np.zeros((c.n_points - 1, 2, 3)),
+                                                      c.color, thickness=c.width_px, thickness_units="screen")
+                                  for c in self.connectors]
+        for o in self.tracks.objects:
+            self._world_handles.append(s.add_line_segments(f"/tracks/observed/{o.name}", _segments(o.position_m),
+                                                           (255, 140, 0), thickness=3, thickness_units="screen"))
+        self._world_handles += self.object_handles + self.connector_handles
+        self.camera = self._view_scenario.camera(sc)   # None: no video camera, so no frustum and no camera view
+        return drawing
 
     def _first_view(self, drawing) -> None:
         """New browsers start looking at the whole scene (the ramp, the tank) filling most of a
@@ -553,6 +618,11 @@ class Viewer:
         g = self.server.gui
         ctrl = self.ctrl
         with g.add_folder("Video"):
+            self.video_dropdown = None
+            if len(self._videos) > 1:
+                self.video_dropdown = g.add_dropdown("Video", [f"video {v + 1}" for v in range(len(self._videos))],
+                                                     hint="which of the problem's videos to show (the chains "
+                                                          "fit them all)")
             self.frame_slider = g.add_slider("Frame", 0, self.n_frames - 1, 1, 0)
             self.play = g.add_checkbox("Play", False)
             self.view_button = g.add_button("Camera view")
@@ -775,6 +845,8 @@ class Viewer:
     def _wire(self) -> None:
         ctrl = self.ctrl
         self.frame_slider.on_update(lambda _: self.set_frame(int(self.frame_slider.value)))
+        if self.video_dropdown is not None:
+            self.video_dropdown.on_update(lambda _: self.show_video(int(self.video_dropdown.value.split()[-1]) - 1))
         self.view_button.on_click(lambda ev: self.snap_camera(ev.client))
         self.free_button.on_click(lambda ev: self.free_view(ev.client))
         self.opacity_slider.on_update(lambda _: self._set_opacity(float(self.opacity_slider.value)))
@@ -937,7 +1009,7 @@ class Viewer:
                 values = {n: float(v) for n, v in zip(self.ctrl.names, position)}
             self.selection_empty = len(samples) == 0
             self.selection = Selection(chain, index)
-            self.traj = self.model.motion(position)
+            self.traj = self._motion(position)
             self.resimulations += 1
             for fn in list(self._selection_listeners):
                 try:
@@ -1012,11 +1084,17 @@ class Viewer:
         self.jump_to_map()
 
     def _pose_objects(self, frame: int) -> None:
+        """The objects' meshes and the connectors between them where the selected motion has
+        them at `frame`."""
         traj = self.traj
         f = int(np.clip(frame, 0, traj.n_frames - 1))
         for i, h in enumerate(self.object_handles):
             h.position = traj.position_m[i, f]
             h.wxyz = _wxyz_from_xyzw(traj.orientation_xyzw[i, f])
+        if self.connectors:
+            pose = frame_pose(traj, f)
+            for c, h in zip(self.connectors, self.connector_handles):
+                h.points = _segments(connector_points(c, *pose))
 
     def set_frame(self, frame: int) -> None:
         with self._lock:

@@ -4,46 +4,66 @@
 from, the mass scale, the patch geometry, the objects it was trained and tested on) in one
 model file (`modelfile.py`: NPZ + JSON, never pickle). `read_video` crops the read objects
 of a video (`Scenario.readouts`) and returns a `Reading` per object: a log-normal for the
-mass and a normal for the friction. `chain_starts` turns readings into where MCMC chains
-start (Galileo Fig. 4) and into an independence proposal (`galileo.mcmc.Independence`).
+mass and a normal for the friction. `independence` turns readings into an independence
+proposal (`galileo.mcmc.Independence`) over the latents the readouts name, each quantity
+scaled to its latent; `chain_starts` draws where MCMC chains start from it (Galileo Fig. 4).
 """
 from __future__ import annotations
 
+import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 
 from .. import registry
 from ..errors import GalileoError
+from ..readout import FRICTION, MASS
 from . import lenet, modelfile
 
+log = logging.getLogger(__name__)
+
 Z90 = 1.6448536269514722     # the 95% quantile of a standard normal: 90% intervals
+MIN_SD = 1e-3                # the independence proposal's narrowest spread (a latent's units; logs for log-normals)
 DATA = Path(__file__).resolve().parents[1] / "data"
 BUILTIN = DATA / "recognition_ramp.npz"     # the ramp's (Galileo labels on the full preset, split 0 held out)
 
 
 def builtin(scenario: str | None) -> Path | None:
     """The shipped model for a scenario's built-in dataset (data/recognition_<scenario>.npz), if any."""
-    path = DATA / f"recognition_{scenario or 'ramp'}.npz"
+    path = DATA / f"recognition_{scenario or registry.DEFAULT}.npz"
     return path if path.is_file() else None
 
 
 @dataclass(frozen=True)
 class Reading:
     """One object read from one frame: ln(mass / kg) ~ N(log_mass, log_mass_sd), friction ~
-    N(friction, friction_sd)."""
+    N(friction, friction_sd), and what a model with more outputs reads of other quantities
+    (`others`: quantity -> (kind "normal" or "lognormal", mean, SD), of its log for a
+    log-normal; e.g. "stiffness_npm")."""
     role: str
     log_mass: float
     log_mass_sd: float
     friction: float | None      # None: the model never learnt friction (no labels: e.g. splash)
     friction_sd: float | None
     patches: int
+    others: Mapping[str, tuple[str, float, float]] = field(default_factory=dict)
 
     @property
     def mass_kg(self) -> float:
         return math.exp(self.log_mass)   # the median of the log-normal
+
+    def distribution(self, quantity: str) -> tuple[str, float, float] | None:
+        """What this reading says of `quantity` (a `Readout` quantity name), in its own units:
+        ("lognormal", mean of its log, SD of its log) for the mass, ("normal", mean, SD) for the
+        friction, `others`' entry for another; None for a quantity the model does not read."""
+        if quantity == MASS:
+            return "lognormal", self.log_mass, self.log_mass_sd
+        if quantity == FRICTION:
+            return None if self.friction is None else ("normal", self.friction, self.friction_sd)
+        return self.others.get(quantity)
 
     def to_json(self) -> dict:
         d = {"role": self.role, "mass_kg": self.mass_kg,
@@ -53,6 +73,8 @@ class Reading:
         if self.friction is not None:
             d.update({"friction": self.friction, "friction_sd": self.friction_sd,
                       "friction_90": [self.friction - Z90 * self.friction_sd, self.friction + Z90 * self.friction_sd]})
+        for quantity, (kind, mean, sd) in self.others.items():
+            d[quantity] = {"kind": kind, "mean": mean, "sd": sd}
         return d
 
 
@@ -168,8 +190,11 @@ def recognition_init(model, video, scene, tracks, move_every: int = 0, source: s
 
 
 def independence(readings: dict[str, Reading], scenario, prepared_scene, names, bounds: np.ndarray, every: int = 1):
-    """The readings as an independence proposal over the latent vector (`names` order):
-    log-normal masses, normal frictions, the prior (uniform) for every other latent."""
+    """The readings as an independence proposal over the latent vector (`names` order): each
+    latent a readout names (`Readout.reads`) gets what the model read of its quantity, scaled
+    to the latent (latent = scale x quantity: a log-normal's log shifted by ln scale, a
+    normal's mean and SD multiplied by it); the prior (uniform) for every other latent, and
+    for a quantity the model does not read (an info line says so)."""
     from ..mcmc import Independence
 
     kinds, loc, scale = [], [], []
@@ -179,12 +204,20 @@ def independence(readings: dict[str, Reading], scenario, prepared_scene, names, 
         rd = readings.get(r.role)
         if rd is None:
             continue
-        if r.mass in names:
-            j = names.index(r.mass)
-            kinds[j], loc[j], scale[j] = "lognormal", rd.log_mass + math.log(r.mass_per_kg), max(rd.log_mass_sd, 1e-3)
-        if r.friction in names and rd.friction is not None:
-            j = names.index(r.friction)
-            kinds[j], loc[j], scale[j] = "normal", rd.friction, max(rd.friction_sd, 1e-3)
+        for quantity, (latent, per_unit) in r.reads.items():
+            if latent not in names:
+                continue
+            read = rd.distribution(quantity)
+            if read is None:
+                log.info("recognition: the model does not read the %s object's %s; %s starts from its prior",
+                         r.role, quantity, latent)
+                continue
+            kind, mean, sd = read
+            j = names.index(latent)
+            if kind == "lognormal":
+                kinds[j], loc[j], scale[j] = kind, mean + math.log(per_unit), max(sd, MIN_SD)
+            else:
+                kinds[j], loc[j], scale[j] = kind, mean * per_unit, max(sd * per_unit, MIN_SD)
     q = Independence(tuple(kinds), tuple(loc), tuple(scale), every)
     q.check()
     return q

@@ -25,7 +25,6 @@ class RampScenario(Scenario):
     name = "ramp"
     description = ("an object slides down a ramp and maybe hits a target on the ground "
                    "(Galileo, NIPS 2015): masses and frictions from tracked velocities")
-    package = __name__   # scene.py, tracking.py, recognition.py
     noise = Noise("sigma_mps", "m/s", 0.05, "scale of each tracked velocity component's noise (x, z): the paper's "
                   "Sigma, a standard deviation for its Gaussian likelihood, the scale of the default Student-t",
                   limits=(1e-4, 10.0))   # 0.1 mm/s (a pixel's jitter is more) to 10 m/s (no ramp is that fast)
@@ -34,6 +33,58 @@ class RampScenario(Scenario):
     paper_priors = {"observation": "gaussian"}
 
 
+    # -- scene and observations ---------------------------------------------------------------------
+    def scene_from_json(self, data):
+        from .scene import scene_from_json
+
+        return scene_from_json(data)
+
+    def default_scene(self):
+        from .scene import default_scene
+
+        return default_scene()
+
+    def track(self, video_path, scene, *, progress=True, debug_video=None):
+        from .tracking import track
+
+        return track(video_path, scene, progress=progress, debug_video=debug_video)
+
+    # -- capabilities (their modules are imported when asked) --------------------------------------------
+    @property
+    def dataset(self):
+        from .dataset import DATASET
+
+        return DATASET
+
+    @property
+    def experiments(self):
+        from ...capabilities import Experiments
+        from . import experiments, report
+
+        return Experiments(experiments.run_video, experiments.summarise, report.sections,
+                           coverage=("k1", "log_mass_ratio"))
+
+    @property
+    def synthetic(self):
+        from ...capabilities import Synthetic
+        from . import synthetic
+
+        return Synthetic(synthetic.synthetic_tracks, synthetic.random_scene, synthetic.describe)
+
+    @property
+    def recognition(self):
+        from ...capabilities import Recognition
+        from . import recognition as r
+
+        return Recognition(r.readouts, r.examples, r.features, r.label)
+
+    @property
+    def calibration(self):
+        from .clicks import CALIBRATION
+
+        return CALIBRATION
+
+    # -- inference -------------------------------------------------------------------------------------
     def prepare(self, scene, tracks):
         from .likelihood import scene_for_inference
 
@@ -43,11 +94,6 @@ class RampScenario(Scenario):
         from .physics import Simulator
 
         return Simulator(scene).run(n_frames, values, fps=fps, with_orientation=True)
-
-    def synthetic_tracks(self, prepared_scene, values, rng, noise):
-        from .synthetic import synthetic_tracks
-
-        return synthetic_tracks(prepared_scene, values, rng, noise)
 
     def likelihood(self, prepared_scene, tracks, noise, speedups=True):
         from .likelihood import VelocityLikelihood

@@ -9,19 +9,19 @@ Presets:
 
 Each video folder holds video.mp4 (H.264, 640x480, 30 fps), scene.json (everything to
 simulate it and its camera) and truth.json (latents and the simulated trajectory).
-The output folder also gets index.json listing the videos. Deterministic per seed.
+The output folder also gets index.json listing the videos. Deterministic per seed; built
+by `galileo.dataset.build` (parallel, resumable) from `DATASET`.
 """
 from __future__ import annotations
 
 import dataclasses
-import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ...progress import tqdm
+from ... import dataset
+from ...errors import GalileoError
 from ...jsonio import write_json
 from .materials import MATERIALS, MATERIALS_BY_NAME, CatalogueObject, catalogue, sample_target
 from .physics import Simulator
@@ -51,7 +51,7 @@ def _demo_object() -> CatalogueObject:
 def plan(preset: str, seed: int = 0) -> list[VideoSpec]:
     """The videos a preset renders (names, objects, angles, targets, per-video seeds)."""
     if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}; expected one of {', '.join(PRESETS)}")
+        raise GalileoError(f"unknown preset {preset!r}; expected one of {', '.join(PRESETS)}")
     if preset == "demo":
         return [VideoSpec("demo", _demo_object(), 20.0, "cardboard", seed)]
     objs = catalogue(seed)
@@ -110,7 +110,8 @@ def truth_json(scene: Scene, spec: VideoSpec, traj) -> dict:
 
 def render_one(spec: VideoSpec, out_dir: str) -> dict:
     """Render one video folder; returns its index entry."""
-    from .render import Look, render_to_video
+    from ...render import Look
+    from .render import render_to_video
 
     folder = Path(out_dir) / spec.name
     scene = scene_for(spec)
@@ -124,26 +125,13 @@ def render_one(spec: VideoSpec, out_dir: str) -> dict:
             "angle_deg": spec.angle_deg, "target": spec.target, "n_frames": n}
 
 
-def build(preset: str, out: str | Path, seed: int = 0, workers: int | None = None, progress: bool = True) -> list[dict]:
-    """Render a preset into `out`; returns the index (also written to out/index.json)."""
-    specs = plan(preset, seed)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    workers = max(1, min(workers or os.cpu_count() or 1, len(specs)))
-    bar = tqdm(total=len(specs), desc=f"rendering {preset}", unit="video", disable=not progress)
-    entries: list[dict] = []
-    if workers == 1:
-        for s in specs:
-            entries.append(render_one(s, str(out)))
-            bar.update()
-    else:
-        with ProcessPoolExecutor(workers) as pool:
-            for e in pool.map(render_one, specs, [str(out)] * len(specs)):
-                entries.append(e)
-                bar.update()
-    bar.close()
-    write_json(out / "index.json", {"preset": preset, "seed": seed, "videos": entries})
-    return entries
+DATASET = dataset.DatasetSpec("ramp", PRESETS, plan, render_one, index_names_scenario=False,
+                              describe="objects sliding down a 10 or 20 degree ramp: demo (1 video), small (20), full (150)")
+
+
+def build(preset: str, out: str | Path, **kw) -> list[dict]:
+    """`galileo.dataset.build` of the ramp's `DATASET` (kept for the callers from before it)."""
+    return dataset.build(DATASET, preset, out, **kw)
 
 
 def material_table() -> list[dict]:
@@ -151,4 +139,4 @@ def material_table() -> list[dict]:
              "shapes": sorted({s[0] for s in m.shapes}), "n_objects": m.n_objects} for m in MATERIALS]
 
 
-__all__ = ["PRESETS", "VideoSpec", "plan", "scene_for", "build", "render_one", "MATERIALS_BY_NAME", "material_table"]
+__all__ = ["DATASET", "PRESETS", "VideoSpec", "plan", "scene_for", "build", "render_one", "MATERIALS_BY_NAME", "material_table"]

@@ -28,15 +28,16 @@ on sigma only through a factor applied to sigma-free per-frame residuals (gaussi
 frame's sum of squared residuals r^2, times -1/(2 sigma^2); student_t: the frame's r^2 per
 component, each through log1p(r^2 / (nu sigma^2)), times -(nu+1)/2).
 
-The model treats a world at rest as staying at rest: once, for two consecutive frames,
-every object moves slower than REST_MPS (1 mm/s, sigma / 50), turns slower than REST_RADPS
-(0.02 rad/s: 1 mm/s at 5 cm from the centre) and is not speeding up (by more than
-REST_CREEP_MPS per frame), later frames hold the last positions with zero velocity (a
-deterministic version of Bullet's sleeping). Both paths below apply it. Bullet's resting
-contacts relax (the speed halves every frame) and often leave a slow yaw drift behind a
-collision (~1e-3 rad/s, 1e-4 m/s); the rule ends those runs. An object on the verge of
-sliding (friction within ~2e-4 of tan of the ramp angle) creeps slower than the rule sees
-and counts as at rest: it would move about 3 mm in 2 s.
+The model treats a world at rest as staying at rest (`galileo.framelik`'s rest rule, checked
+every frame): once, for two consecutive frames, every object moves slower than REST_MPS
+(1 mm/s, sigma / 50), turns slower than REST_RADPS (0.02 rad/s: 1 mm/s at 5 cm from the
+centre) and is not speeding up (by more than REST_CREEP_MPS per frame), later frames hold
+the last positions with zero velocity (a deterministic version of Bullet's sleeping). Both
+paths below apply it. Bullet's resting contacts relax (the speed halves every frame) and
+often leave a slow yaw drift behind a collision (~1e-3 rad/s, 1e-4 m/s); the rule ends
+those runs. An object on the verge of sliding (friction within ~2e-4 of tan of the ramp
+angle) creeps slower than the rule sees and counts as at rest: it would move about 3 mm in
+2 s.
 
 The model runs in two phases. Phase A, until the objects come within reach of each other
 (closest distance <= what their speeds, spins and g could close in one physics step, plus
@@ -58,25 +59,28 @@ slightly on its friction. tests/test_inference.py checks the motion bit for bit 
 Bullet runs with phase A's own values, and within the one-ulp bound against the
 proposal's.
 
-Exact speed-ups (`speedups=True`; each gives the same accept/reject decisions as the
-plain path, `speedups=False`, which simulates every frame of every proposal):
+The likelihood stands on `galileo.framelik.FrameLikelihood` (a tick is a video frame; the
+phases are its run, phase A branching into phase B at the switch), which owns the frame
+loop, the lock, `motion` and the exact speed-ups (`speedups=True`; each gives the same
+accept/reject decisions as the plain path, `speedups=False`, which simulates every frame of
+every proposal):
 
 * early rejection: every frame adds a term <= 0 (either model), so the normaliser plus the
   partial sum is an upper bound of the final value; the simulation stops once it falls
   below the MH threshold.
 * at-rest cut-off: once the world is at rest, the remaining frames are known without
   stepping: their terms at zero simulated velocity, summed from the observations for the
-  proposal's sigma (gaussian: -1/(2 sigma^2) times a sigma-free sum; student_t: computed
-  once per sigma).
+  proposal's sigma (`rest_sum`; gaussian: -1/(2 sigma^2) times a sigma-free sum; student_t:
+  computed once per sigma).
 * prefix reuse: a proposal with the k1 of a recent one (every proposal of m1, m2, k2,
   e_collision and sigma) resumes from the snapshot at the switch, with the sigma-free
-  residuals of the frames up to there kept and turned into terms for the proposal's sigma
-  exactly as the plain path does at its switch. Without a switch (no target, or the object
-  stops short of it) the whole result depends only on k1 (and sigma): its residuals are
-  reused whole.
-* result reuse (with the sigma latent): a proposal whose latents other than sigma are
-  those of a recent full evaluation (every proposal of sigma) takes its residuals and
-  needs no physics at all; the terms are summed in the plain path's order.
+  residuals of the frames up to there kept (each frame's state holds its residual) and
+  turned into terms for the proposal's sigma exactly as the plain path does at its switch.
+  Without a switch (no target, or the object stops short of it) the whole result depends
+  only on k1 (and sigma): its residuals are reused whole.
+* run reuse (with the sigma latent): a proposal whose latents other than sigma are those of
+  a recent full evaluation (every proposal of sigma) takes its residuals and needs no
+  physics at all; the terms are summed whole, in the plain path's order.
 
 Both paths evaluate the terms and sums by the same code in the same order (the frames
 before the switch summed by numpy, those after one by one), so they give the same value
@@ -91,18 +95,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...sim.bullet import client_lock, pb
+from ...datatypes import Tracks
 from ...errors import GalileoError
+from ...framelik import KEPT_PREFIXES, FrameLikelihood, Kept, Run
+from ...sim.bullet import client_lock, pb
 from .physics import Simulator
 from .scene import Scene
-from ...datatypes import Tracks, Trajectory
 
-REST_MPS = 1e-3        # linear speed below which an object counts as at rest (m/s)
-REST_RADPS = 0.02      # and angular speed (rad/s)
-REST_CREEP_MPS = 5e-5  # ... as long as its speed grew by no more than this since the frame before
 SIGMA_MPS = 0.05
 SIGMA_LATENT = "log10_sigma_mps"   # the sigma latent (`Priors.infer_sigma`): sigma = 10 ** it
-UNIT_MASS_KG = 1.0   # the masses phase A runs with (see VelocityLikelihood._evaluate)
+UNIT_MASS_KG = 1.0   # the masses phase A runs with (see VelocityLikelihood._phase_a_values)
 PHASE_A_TARGET_FRICTION = 1.0   # and the target's friction (it rests on the ground until hit)
 SWITCH_MARGIN_M = 0.01          # phase A ends this much before one frame's reach
 
@@ -156,22 +158,10 @@ def check_sigma(sigma) -> float:
 
 
 @dataclass
-class _Prefix:
-    first_b: int | None                # first frame of phase B (None: no switch, the whole result by k1)
-    snapshot: tuple | None = None      # the objects' poses and velocities where phase A ended:
-    substeps: int = 0                  # ... this many physics steps after frame first_b - 1
-    terms: list | None = None          # sigma-free per-frame residuals (`_residual`) of frames < first_b;
-                                       # without a switch: of every frame scored
-    rest: int | None = None            # without a switch: the frame the rest rule held still from
-    full: tuple | None = None          # without a switch: (noise key, value) of the last sum
-
-
-@dataclass
-class _Result:
-    """A full evaluation's sigma-free record (result reuse, with the sigma latent)."""
-    first_b: int | None                # as in _Prefix (None: no switch)
-    terms: list                        # residuals of every frame scored
-    rest: int | None                   # the frame the rest rule held still from (None: none)
+class _Switch(Kept):
+    """Where phase A ended (a `Kept` prefix): `snapshot` holds both objects' poses and
+    velocities `substeps` physics steps after frame first_b - 1."""
+    substeps: int = 0
 
 
 class _Noise:
@@ -184,17 +174,69 @@ class _Noise:
         self.rest: list | None = None
 
 
-class VelocityLikelihood:
+class _Run(Run):
+    """One run of the two phases (a tick is a video frame; its state: the objects' twists and
+    the frame's sigma-free residual). Phase A (`phase_a`, with a target): the ramp object
+    slides alone, the target's motion is the likelihood's `_target_alone`; it branches where
+    the objects come within one frame's reach of each other. Phase B: both objects, the
+    proposal's values, resumed `substeps` physics steps into its first frame."""
+
+    def __init__(self, lik: VelocityLikelihood, w, phase_a: bool, substeps: int = 0):
+        self.lik, self.w, self.phase_a, self.substeps = lik, w, phase_a, substeps
+        self.k = 0
+
+    def tick(self, k: int) -> tuple:
+        lik, cid, bodies = self.lik, self.w.cid, self.w.bodies
+        if k:
+            todo = lik.spf - self.substeps
+            self.substeps = 0
+            for _ in range(todo):
+                pb.stepSimulation(physicsClientId=cid)
+            lik.steps += todo
+        self.k = k
+        if self.phase_a:
+            twists = [pb.getBaseVelocity(bodies[0], physicsClientId=cid), lik._target_alone[k * lik.spf][1]]
+        else:
+            twists = [pb.getBaseVelocity(b, physicsClientId=cid) for b in bodies]
+        return twists, lik._residual(k, [t[0] for t in twists])
+
+    def poses(self) -> list:
+        lik, cid = self.lik, self.w.cid
+        out = [pb.getBasePositionAndOrientation(b, physicsClientId=cid) for b in self.w.bodies]
+        if self.phase_a:
+            out[1] = lik._target_alone[self.k * lik.spf][0]
+        return out
+
+    def branch(self, k: int, state) -> _Switch | None:
+        lik = self.lik
+        if not self.phase_a or k >= lik.n_frames - 1 or not lik._within(self.w, state[0], k * lik.spf,
+                                                                        1.0 / lik.fps):
+            return None
+        substeps = lik._refine_switch(self.w, k)
+        pose, twist = lik._target_alone[k * lik.spf + substeps]
+        return _Switch(snapshot=(lik.sim.snapshot()[0], pose + twist), substeps=substeps)
+
+    def skip(self, first: int, last: int) -> None:
+        todo = self.lik.spf * (last - first + 1)
+        for _ in range(todo):
+            pb.stepSimulation(physicsClientId=self.w.cid)
+        self.lik.steps += todo
+
+
+class VelocityLikelihood(FrameLikelihood):
     """Callable log-likelihood over the latent vector (in `names` order), for the MH kernel."""
 
     def __init__(self, scene: Scene, tracks: Tracks, sigma_mps: float = SIGMA_MPS, speedups: bool = True,
-                 cache_size: int = 4):
+                 cache_size: int = KEPT_PREFIXES):
         self.sigma_mps = check_sigma(sigma_mps)   # the fixed sigma (unused with the sigma latent)
         self.scene = scene_for_inference(scene, tracks)
-        self.names = self.scene.latent_names
-        self.fps = tracks.fps
-        self.n_frames = tracks.n_frames
-        self.speedups = speedups
+        names = self.scene.latent_names
+        # the physics depends on every latent but sigma, up to the switch on k1 alone; a sigma
+        # proposal repeats the physics of a recent one (runs kept: 4 per prefix). A proposal
+        # answered without physics is summed whole: its exact value, not a bound
+        super().__init__(names, tracks.fps, tracks.n_frames, [o.name for o in self.scene.objects],
+                         speedups=speedups, sim_latents=[n for n in names if n != SIGMA_LATENT],
+                         prefix_latents=["k1"], prefixes=cache_size, motions=4 * cache_size, whole_replays=True)
         priors = self.scene.priors
         self.observation = priors.observation
         self.dof = priors.student_t_dof
@@ -220,24 +262,14 @@ class VelocityLikelihood:
         self._noises: OrderedDict[float, _Noise] = OrderedDict()   # log10 sigma -> _Noise (sigma latent)
         self._fixed = self._make_noise(self.sigma_mps)
         self.log_norm = self._fixed.log_norm    # the normaliser at the fixed sigma
-        self._sigma_at = self.names.index(SIGMA_LATENT) if self.infer_sigma else None
         self.spf = int(round(self.scene.sim_hz / self.fps))
         # each object's farthest surface point from its centre (a bound for `_reach_m`)
         self._radius_m = [0.5 * float(np.linalg.norm(o.shape.size_m)) for o in self.scene.objects]
         with client_lock:    # another thread's simulation (the viewer's, rerun's) must not step this world
             self.sim = Simulator(self.scene)
             self._target_alone = self._simulate_target_alone() if len(self.scene.objects) == 2 else None
-        self._prefixes: OrderedDict[tuple, _Prefix] = OrderedDict()
-        self._cache_size = cache_size
-        # result reuse: only a sigma proposal repeats the physics of a recent evaluation
-        self._results: OrderedDict[tuple, _Result] | None = OrderedDict() if self.infer_sigma else None
-        self._physical = tuple(n for n in self.names if n != SIGMA_LATENT)
-        self.steps = 0          # physics steps taken (for benchmarks)
 
-    # -- pieces --------------------------------------------------------------------------
-    def values_of(self, position) -> dict[str, float]:
-        return {n: float(v) for n, v in zip(self.names, position)}
-
+    # -- the noise and the terms ---------------------------------------------------------------
     def _make_noise(self, sigma: float) -> _Noise:
         if self.observation == "student_t":
             return _Noise(sigma, self.n_terms * (self._t_const - math.log(sigma)), 1.0 / (self.dof * sigma * sigma))
@@ -290,7 +322,10 @@ class VelocityLikelihood:
             acc += math.log1p(r2 * inv)
         return acc * self._t_coef
 
-    def _rest_term(self, f0: int, noise: _Noise) -> float:
+    def observe(self, f: int, state, noise: _Noise) -> float:
+        return self._term(state[1], noise)
+
+    def rest_sum(self, f0: int, noise: _Noise) -> float:
         """Sum of the terms of frames f0.. with zero simulated velocity."""
         if self.observation != "student_t":
             return noise.scale * self._rest_d2[f0]
@@ -299,22 +334,7 @@ class VelocityLikelihood:
             noise.rest = np.concatenate([np.cumsum(per_frame[::-1])[::-1], [0.0]]).tolist()
         return noise.rest[f0]
 
-    def _prefix_sum(self, terms: list, first_b: int, noise: _Noise) -> float:
-        """The terms of frames < first_b summed (numpy's order: both paths do this at the switch)."""
-        term = self._term
-        return float(np.array([term(r, noise) for r in terms[:first_b]]).sum())
-
-    def _replay(self, first_b: int | None, terms: list, rest: int | None, noise: _Noise) -> float:
-        """A full evaluation's sum from its residuals, in the order `_evaluate` sums it."""
-        term = self._term
-        start = first_b or 0
-        total = self._prefix_sum(terms, first_b, noise) if first_b else 0.0
-        for f in range(start, len(terms)):
-            total += term(terms[f], noise)
-        if rest is not None:
-            total += self._rest_term(rest, noise)
-        return total
-
+    # -- the two phases ------------------------------------------------------------------------
     def _phase_a_values(self, values: dict) -> dict:
         """The proposal's values as phase A uses them: unit masses, the target's friction
         fixed, no collision restitution or sigma (the scene's restitutions)."""
@@ -328,99 +348,19 @@ class VelocityLikelihood:
                 out[k] = v
         return out
 
-    # -- the target --------------------------------------------------------------------------
-    def __call__(self, position, threshold: float | None = None):
-        """(log-likelihood, stopped_early). With a threshold and speed-ups, may stop early and
-        return an upper bound below the threshold. Thread-safe, as `motion` (the app's
-        `--workers 1` runs chains in its own process, beside the viewer's re-simulations)."""
-        values = self.values_of(position)
-        noise = self.noise_of(values)
-        limit = -math.inf if (threshold is None or not self.speedups) else threshold
-        with client_lock:
-            total, early, _ = self._evaluate(values, limit, noise=noise)
-        return noise.log_norm + total, early
-
-    def _evaluate(self, values: dict, limit: float, record: bool = False, reuse: bool = True,
-                  noise: _Noise | None = None):
-        """Sum of the per-frame terms; (sum or partial sum, stopped early, record): with
-        `record`, per-frame (positions, velocities, orientations), NaN in frames a reused
-        prefix skipped (`reuse=False` simulates from frame 0 instead).
-
-        Phase A: the ramp object slides with unit mass while the target's motion alone (it
-        rests on the ground) is taken from `_target_alone`; until the objects come within
-        one frame's reach of each other (frame s). Phase B: the world restarts from both
-        objects' poses and velocities at frame s with the proposal's values and runs on from
-        frame s + 1. Both paths do exactly this, so the world at frame s depends only on k1
-        and its snapshot serves every proposal with the same k1.
-        """
-        noise = noise or self.noise_of(values)
-        fast = self.speedups
-        reusing = fast and reuse
-        n = self.n_frames
-        if reusing and self._results is not None and not record:
-            hit = self._results.get(tuple(values[k] for k in self._physical))
-            if hit is not None:   # only sigma differs from a recent evaluation: no physics
-                self._results.move_to_end(tuple(values[k] for k in self._physical))
-                return self._replay(hit.first_b, hit.terms, hit.rest, noise), False, None
-        key = (values["k1"],)  # all that phase A depends on
-        prefix = self._prefixes.get(key) if reusing else None
-        n_obj = len(self.scene.objects)
-        rec = (np.full((n_obj, n, 3), np.nan), np.full((n_obj, n, 3), np.nan),
-               np.full((n_obj, n, 4), np.nan)) if record else None
-        sim = self.sim
-        if prefix is not None:
-            self._prefixes.move_to_end(key)
-            if prefix.first_b is None and not record:
-                if prefix.full is None or prefix.full[0] is not noise:
-                    prefix.full = (noise, self._replay(None, prefix.terms, prefix.rest, noise))
-                return prefix.full[1], False, None
-            if prefix.snapshot is not None:
-                total = self._prefix_sum(prefix.terms, prefix.first_b, noise)
-                if noise.log_norm + total < limit:   # the kernel's own test: value < threshold
-                    return total, True, None
-                residuals = None if self._results is None else list(prefix.terms) + [None] * (n - prefix.first_b)
-                return self._phase_b(values, prefix.first_b, prefix.substeps, prefix.snapshot, total, limit, rec,
-                                     noise, residuals)
-        w = sim.reset(self._phase_a_values(values))
-        two = n_obj == 2
-        if two:  # the target takes no part in phase A's simulation: its motion alone is known
+    def start(self, values: dict) -> _Run:
+        """Phase A from t = 0: the ramp object slides with unit mass; the target takes no part in
+        the simulation (its motion alone is known)."""
+        w = self.sim.reset(self._phase_a_values(values))
+        two = len(self.scene.objects) == 2
+        if two:
             pb.setCollisionFilterGroupMask(w.bodies[1], -1, 0, 0, physicsClientId=w.cid)
-        residuals = [None] * n
-        status, f, total = self._frames(w, 0, 0.0, limit, residuals, rec, noise, phase_a=two)
-        if status == "early":
-            return total, True, rec
-        if status != "switch":
-            if fast:
-                end = f if status == "rest" else n
-                rest = f if status == "rest" else None
-                self._remember(key, _Prefix(None, terms=residuals[:end], rest=rest, full=(noise, total)))
-            return total, False, rec
-        first_b = f + 1
-        total = self._prefix_sum(residuals, first_b, noise)
-        substeps = self._refine_switch(w, f)
-        pose, twist = self._target_alone[f * self.spf + substeps]
-        snapshot = (sim.snapshot()[0], pose + twist)
-        if fast:
-            self._remember(key, _Prefix(first_b, snapshot, substeps, residuals[:first_b]))
-        return self._phase_b(values, first_b, substeps, snapshot, total, limit, rec, noise, residuals)
+        return _Run(self, w, phase_a=two)
 
-    def _phase_b(self, values: dict, first: int, substeps: int, snapshot: tuple, total: float, limit: float, rec,
-                 noise: _Noise, residuals: list):
-        """From frame `first` on, with the proposal's values, the world resumed from the
-        snapshot taken `substeps` physics steps after frame first - 1."""
-        w = self.sim.resume(snapshot, values)
-        status, f, total = self._frames(w, first, total, limit, residuals, rec, noise, phase_a=False,
-                                        substeps_done=substeps)
-        if status != "early" and self.speedups and residuals is not None:
-            end = f if status == "rest" else self.n_frames
-            self._keep_result(values, first, residuals[:end], f if status == "rest" else None)
-        return total, status == "early", rec
-
-    def _keep_result(self, values: dict, first_b: int | None, terms: list, rest: int | None) -> None:
-        if self._results is not None and self._cache_size > 0:
-            self._results[tuple(values[k] for k in self._physical)] = _Result(first_b, terms, rest)
-            while len(self._results) > 4 * self._cache_size:
-                self._results.popitem(last=False)
+    def resume(self, kept: _Switch, values: dict) -> _Run:
+        """Phase B: the world restarted from both objects' poses and velocities where phase A
+        ended, with the proposal's values."""
+        return _Run(self, self.sim.resume(kept.snapshot, values), phase_a=False, substeps=kept.substeps)
 
     def _reach_m(self, twists, dt: float) -> float:
         """How far the objects could close in on each other within dt: each point moves at
@@ -474,85 +414,3 @@ class VelocityLikelihood:
                         pb.getBaseVelocity(target, physicsClientId=cid)))
         sim.drop_contacts()  # the filters back to normal
         return out
-
-    def _frames(self, w, first: int, total: float, limit: float, residuals: list | None, rec, noise: _Noise,
-                phase_a: bool, substeps_done: int = 0):
-        """Step through frames first.. (stepping into `first` unless it is 0), adding terms.
-
-        Returns (status, frame, total): "done", "early" (normaliser + partial sum below the
-        limit, the MH threshold),
-        "rest" (the world came to rest; the rest of the frames added at zero velocity) or,
-        in phase A, "switch" (the objects came within one frame's reach of each other at
-        `frame`; its term is added). Per-frame sigma-free residuals go into `residuals`
-        unless it is None; the terms are those of `noise`.
-        In phase A only the ramp object is simulated; the target's pose and velocities come
-        from `_target_alone` (it is moved there before the distance test, its own simulated
-        state unused). `substeps_done`: physics steps already taken into frame `first`."""
-        fast = self.speedups
-        cid, bodies = w.cid, w.bodies
-        spf, n = self.spf, self.n_frames
-        rest_run = 0
-        speeds = [math.inf] * len(bodies)
-        step, get_vel = pb.stepSimulation, pb.getBaseVelocity
-        target_alone = self._target_alone
-        frame_dt = 1.0 / self.fps
-        residual, term_of = self._residual, self._term
-        log_norm = noise.log_norm
-        for f in range(first, n):
-            if f:
-                todo = spf - substeps_done if f == first else spf
-                for _ in range(todo):
-                    step(physicsClientId=cid)
-                self.steps += todo
-            if phase_a:
-                twists = [get_vel(bodies[0], physicsClientId=cid), target_alone[f * spf][1]]
-            else:
-                twists = [get_vel(b, physicsClientId=cid) for b in bodies]
-            vel = [t[0] for t in twists]
-            slow = True  # every object slower than REST_MPS, turning slowly, not speeding up
-            for i, (lin, ang) in enumerate(twists):
-                speed = math.sqrt(lin[0] * lin[0] + lin[1] * lin[1] + lin[2] * lin[2])
-                if slow and (speed >= REST_MPS or speed > speeds[i] + REST_CREEP_MPS
-                             or ang[0] * ang[0] + ang[1] * ang[1] + ang[2] * ang[2] >= REST_RADPS ** 2):
-                    slow = False
-                speeds[i] = speed
-            if record := rec is not None:
-                rec[1][:, f] = vel
-                for i, b in enumerate(bodies):
-                    rec[0][i, f], rec[2][i, f] = pb.getBasePositionAndOrientation(b, physicsClientId=cid)
-                if phase_a:
-                    rec[0][1, f], rec[2][1, f] = target_alone[f * spf][0]
-            rest_run = rest_run + 1 if (f and slow) else 0
-            if rest_run >= 2:  # at rest: this frame and all later ones hold still
-                if record:
-                    rec[0][:, f:] = rec[0][:, f:f + 1]
-                    rec[2][:, f:] = rec[2][:, f:f + 1]
-                    rec[1][:, f:] = 0.0
-                if not fast:  # the plain path steps through the rest all the same
-                    for _ in range(spf * (n - 1 - f)):
-                        step(physicsClientId=cid)
-                    self.steps += spf * (n - 1 - f)
-                return "rest", f, total + self._rest_term(f, noise)
-            r = residual(f, vel)
-            if residuals is not None:
-                residuals[f] = r
-            total += term_of(r, noise)
-            if log_norm + total < limit:   # the kernel's own test: value < threshold
-                return "early", f, total
-            if phase_a and f < n - 1 and self._within(w, twists, f * spf, frame_dt):
-                return "switch", f, total
-        return "done", n - 1, total
-
-    def _remember(self, key: tuple, entry: _Prefix) -> None:
-        self._prefixes[key] = entry
-        while len(self._prefixes) > self._cache_size:
-            self._prefixes.popitem(last=False)
-
-    # -- the motion scored (for the viewer, rerun and tests) ------------------------------------
-    def motion(self, position) -> Trajectory:
-        """The simulated motion exactly as the likelihood scores it (both phases, the rest
-        rule, prefix reuse): per frame, positions, velocities and orientations. Thread-safe
-        (the process's Bullet client is held for the simulation)."""
-        with client_lock:
-            _, _, (pos, vel, orn) = self._evaluate(self.values_of(position), -math.inf, record=True, reuse=False)
-        return Trajectory(self.fps, [o.name for o in self.scene.objects], pos, vel, orn)

@@ -20,16 +20,16 @@ import numpy as np
 
 from ...errors import GalileoError
 from ...jsonio import read_json
-from ...model import Readout
+from ...readout import Readout
 
 TARGET_MOVED_M = 0.005   # the tracked target moved at least this far: a collision was seen
 RAMP_MOVED_M = 0.005     # the tracked ramp object moved at least this far: it slid
 
 
 def readouts(scene) -> tuple[Readout, ...]:
-    out = [Readout("ramp", "m1_kg", "k1")]
+    out = [Readout("ramp", {"mass_kg": ("m1_kg", 1.0), "friction": ("k1", 1.0)})]
     if scene.target is not None:
-        out.append(Readout("target", "m2_kg", "k2"))
+        out.append(Readout("target", {"mass_kg": ("m2_kg", 1.0), "friction": ("k2", 1.0)}))
     return tuple(out)
 
 

@@ -21,7 +21,7 @@ from ...camera import Camera, camera_from_json, check_camera, check_run, look_at
 from ...errors import SceneError
 from ...fields import Bound, field_value, is_finite_number, is_number, number, pair, show, unknown_fields, where_of
 from ...latents import Latent, check_bounds
-from ...model import SceneFile
+from ...scenefile import SceneFile
 from ...shapes import SHAPE_TYPES, Shape, shape_class
 
 SCENE_VERSION = 1

@@ -42,7 +42,8 @@ def _random_shape(rng: np.random.Generator, kind: str) -> Shape:
 
 def _example(seed: int):
     """One rendered training example: (crop, scalars, label)."""
-    from .render import Look, Renderer
+    from ...render import Look
+    from .render import Renderer
     from .scene import Ramp, Scene, SceneObject, default_camera
 
     rng = np.random.default_rng(seed)

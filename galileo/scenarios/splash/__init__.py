@@ -38,7 +38,6 @@ class SplashScenario(Scenario):
     name = "splash"
     description = ("an object dropped into a tank of water (Physics 101, splash): density, bottom area, "
                    "water drag and start frame from tracked positions and velocities; mass = density x volume")
-    package = __name__   # scene.py, tracking.py, recognition.py
     protocol = {"chains": 50, "sweeps": 75}   # the seed: 50 chains per video (75 sweeps: Galileo's)
     noise = Noise("sigma_px", "px", 1.0, "SD of tracked positions (px) and velocities (px/frame), the seed's Sigma = 1",
                   limits=(1e-3, 1e4))   # a thousandth of a pixel to more than any frame is wide
@@ -48,6 +47,58 @@ class SplashScenario(Scenario):
     # the object falls from frame 0: patches from its first 10 cm of fall, in air (1 cm keeps frame 0 only)
     recognition_patch_motion_m = 0.10
 
+    # -- scene and observations ---------------------------------------------------------------------
+    def scene_from_json(self, data):
+        from .scene import scene_from_json
+
+        return scene_from_json(data)
+
+    def default_scene(self):
+        from .scene import default_scene
+
+        return default_scene()
+
+    def track(self, video_path, scene, *, progress=True, debug_video=None):
+        from .tracking import track
+
+        return track(video_path, scene, progress=progress, debug_video=debug_video)
+
+    # -- capabilities (their modules are imported when asked) --------------------------------------------
+    @property
+    def dataset(self):
+        from .dataset import DATASET
+
+        return DATASET
+
+    @property
+    def experiments(self):
+        from ...capabilities import Experiments
+        from . import experiments, report
+
+        return Experiments(experiments.run_video, experiments.summarise, report.sections,
+                           coverage=("density_g_cm3", "log_mass_kg"))
+
+    @property
+    def synthetic(self):
+        from ...capabilities import Synthetic
+        from .synthetic import synthetic_tracks
+
+        return Synthetic(synthetic_tracks)
+
+    @property
+    def recognition(self):
+        from ...capabilities import Recognition
+        from . import recognition as r
+
+        return Recognition(r.readouts, r.examples, r.features, r.label)
+
+    @property
+    def calibration(self):
+        from .clicks import CALIBRATION
+
+        return CALIBRATION
+
+    # -- inference -------------------------------------------------------------------------------------
     def prepare(self, scene, tracks):
         """The scene with the bottom-up shape kind and volume from the tracks (when they carry
         them; a volume estimated past the prior's 0.01-100 cm^3 is clipped into it, where a

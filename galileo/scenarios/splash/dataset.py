@@ -14,20 +14,18 @@ has been at rest for TAIL_S, within [MIN_FRAMES, MAX_DURATION_S].
 
 Each video folder holds video.mp4 (H.264, 640x480, 30 fps), scene.json (the splash scene,
 its camera and the true latents) and truth.json (latents and the shown frames' trajectory);
-the output folder gets index.json. Deterministic per seed; parallel workers (fork) each
-simulate and render in their own pybullet client.
+the output folder gets index.json. Deterministic per seed; built by `galileo.dataset.build`
+(parallel, resumable) from `DATASET`.
 """
 from __future__ import annotations
 
 import dataclasses
-import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ...progress import tqdm
+from ... import dataset
 from ...errors import GalileoError
 from ...jsonio import write_json
 from .materials import FLOATERS, SINKERS, CatalogueObject, catalogue
@@ -115,7 +113,7 @@ def truth_json(scene: SplashScene, traj) -> dict:
 
 def render_one(spec: VideoSpec, out_dir: str) -> dict:
     """Render one video folder; returns its index entry."""
-    from ..ramp.render import Look
+    from ...render import Look
     from .render import render_to_video
 
     folder = Path(out_dir) / spec.name
@@ -131,27 +129,13 @@ def render_one(spec: VideoSpec, out_dir: str) -> dict:
             "start_step": scene.start_step, "n_frames": n}
 
 
-def build(preset: str, out: str | Path, seed: int = 0, workers: int | None = None, progress: bool = True) -> list[dict]:
-    """Render a preset into `out`; returns the index (also written to out/index.json)."""
-    specs = plan(preset, seed)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    n_workers = max(1, min(workers or os.cpu_count() or 1, len(specs)))
-    dirs = [str(out)] * len(specs)
-    with tqdm(total=len(specs), desc=f"rendering splash {preset}", unit="video", disable=not progress) as bar:
-        if n_workers == 1:
-            results = map(render_one, specs, dirs)
-        else:
-            pool = ProcessPoolExecutor(n_workers)
-            results = pool.map(render_one, specs, dirs)
-        entries = []
-        for entry in results:
-            entries.append(entry)
-            bar.update()
-        if n_workers > 1:
-            pool.shutdown()
-    write_json(out / "index.json", {"scenario": "splash", "preset": preset, "seed": seed, "videos": entries})
-    return entries
+DATASET = dataset.DatasetSpec("splash", PRESETS, plan, render_one,
+                              describe="objects dropped into a tank of water: demo (1 video), small (8), full (72)")
 
 
-__all__ = ["PRESETS", "FLOATERS", "SINKERS", "VideoSpec", "plan", "scene_for", "build", "render_one"]
+def build(preset: str, out: str | Path, **kw) -> list[dict]:
+    """`galileo.dataset.build` of the splash's `DATASET` (kept for the callers from before it)."""
+    return dataset.build(DATASET, preset, out, **kw)
+
+
+__all__ = ["DATASET", "PRESETS", "FLOATERS", "SINKERS", "VideoSpec", "plan", "scene_for", "build", "render_one"]

@@ -2,7 +2,7 @@
 
 * The object read from a frame: the dropped object (tracked role "object"). Its mass is not
   a latent here: the latent is its density, and mass = density x the bottom-up volume (what
-  tracking measured, in the prepared scene). So the readout's `mass_per_kg` is the density
+  tracking measured, in the prepared scene). So the readout's mass scale is the density
   (g/cm^3) per kilogram of this object, 1 / (1000 V) for V in m^3: a log-normal mass
   reading becomes a log-normal density start. There is no friction.
 * A video's "Galileo label": mass = the MAP density x the bottom-up volume (every video
@@ -22,7 +22,7 @@ import numpy as np
 
 from ...errors import GalileoError
 from ...jsonio import read_json
-from ...model import Readout
+from ...readout import Readout
 from .scene import CM3, KINDS
 
 ROLE = "object"          # the role splash tracking gives the dropped object
@@ -34,7 +34,7 @@ def density_per_kg(scene) -> float:
 
 
 def readouts(scene) -> tuple[Readout, ...]:
-    return (Readout(ROLE, "density_g_cm3", None, density_per_kg(scene)),)
+    return (Readout(ROLE, {"mass_kg": ("density_g_cm3", density_per_kg(scene))}),)
 
 
 def label(scene, tracks, values: dict) -> dict:

@@ -1,6 +1,6 @@
 """Rendering splash scenes into Physics-101-style side-view videos (TinyRenderer).
 
-The camera is the scene's calibrated pinhole camera (the ramp's `gl_view_projection`, so
+The camera is the scene's calibrated pinhole camera (`galileo.render.gl_view_projection`, so
 that `Camera.project` of the object's centre lands on the object in the image). What is drawn:
 
 * the tank: its front and back glass are not drawn (the object stays visible behind the
@@ -14,21 +14,21 @@ that `Camera.project` of the object's centre lands on the object in the image). 
   high from this camera) get a light sheen, and a dark line marks the waterline on the
   front glass. No fluid is simulated or drawn (no splash, no ripples);
 * the object with a block texture in its material's colour (corners for KLT);
-* per-video light, exposure drift and sensor noise (the ramp's `Look`).
+* per-video light, exposure drift and sensor noise (`galileo.render.Look`).
 
 Video frame 0 is physics step `scene.start_step` after the release (frame f: step
 start_step + f * sim_hz / fps); the steps before it are simulated but not shown.
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 
 from ...datatypes import Trajectory
+from ...render import (DEFAULT_LOOK, FAR_M, NEAR_M, Look, block_texture, camera_image, gl_view_projection,
+                       grain_texture, load_texture)
 from ...sim.bullet import pb
-from ..ramp.render import FAR_M, NEAR_M, Look, _load_texture, block_texture, gl_view_projection, grain_texture
 from .physics import Simulator
 from .scene import SplashScene
 
@@ -43,7 +43,6 @@ WATERLINE_DARK = 0.45
 BACKDROP_Y_M = 0.30            # the room's back wall, this far behind the tank's centre
 WALL_RGB, TABLE_RGB = (222, 220, 212), (150, 128, 105)
 DEFAULT_OBJECT_RGB = (200, 80, 60)
-DEFAULT_LOOK = Look((0.3, -1.2, 2.0), 0.6, 0.45, 0.0, 0.0, 0)
 
 
 def object_color(scene: SplashScene) -> tuple[int, int, int]:
@@ -97,8 +96,8 @@ class Renderer:
         for b, tex in zip(w.splash_room, (grain_texture(WALL_RGB, rng, strength=6),
                                           grain_texture(TABLE_RGB, rng, strength=14, streaks=True))):
             pb.changeVisualShape(b, -1, rgbaColor=[1, 1, 1, 1], physicsClientId=cid,
-                                 textureUniqueId=_load_texture(tex, f"splash_room{b}_{texture_seed}", cid))
-        self.texture = _load_texture(block_texture(color or object_color(scene), rng), f"splash_obj_{texture_seed}", cid)
+                                 textureUniqueId=load_texture(tex, f"splash_room{b}_{texture_seed}", cid))
+        self.texture = load_texture(block_texture(color or object_color(scene), rng), f"splash_obj_{texture_seed}", cid)
         # every pixel's ray (world frame) with unit depth along the optical axis
         r, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
         v, u = np.mgrid[0:cam.height_px, 0:cam.width_px].astype(float)
@@ -151,23 +150,19 @@ class Renderer:
         """Render the world as it is now: RGB uint8 (H, W, 3) [, segmentation (H, W) of body ids]."""
         lk, cam = self.look, self.cam
         h, w = cam.height_px, cam.width_px
-        _, _, rgba, depth, seg = pb.getCameraImage(
-            w, h, self.view, self.proj, renderer=pb.ER_TINY_RENDERER,
-            lightDirection=list(lk.light_dir), lightAmbientCoeff=lk.ambient, lightDiffuseCoeff=lk.diffuse,
-            lightSpecularCoeff=0.05, shadow=0, physicsClientId=self.sim.world.cid)
-        img = np.asarray(rgba, np.uint8).reshape(-1, 4)[:, :3].astype(float)
-        alpha, surface, waterline, glass = self._tint(np.asarray(depth, np.float32))
+        rgba, depth, seg = camera_image(cam, self.view, self.proj, lk, self.sim.world.cid)
+        img = rgba.reshape(-1, 4)[:, :3].astype(float)
+        alpha, surface, waterline, glass = self._tint(depth)
         img += alpha[:, None] * (WATER_RGB - img)
         img[surface] += SHEEN * (SHEEN_RGB - img[surface])
         img[waterline] *= WATERLINE_DARK
         img[glass] += GLASS_TINT * (GLASS_RGB - img[glass])
-        gain = 1.0 + lk.gain_drift * math.sin(2 * math.pi * frame_index / 47.0 + lk.seed % 7)
-        img = img * gain
+        img = img * lk.gain(frame_index)
         if lk.noise_sd:
             img += self._noise_rng.normal(0, lk.noise_sd, img.shape)
         rgb = np.clip(img + 0.5, 0, 255).astype(np.uint8).reshape(h, w, 3)
         if with_segmentation:
-            return rgb, np.asarray(seg, np.int32).reshape(h, w)
+            return rgb, seg
         return rgb
 
     def render(self, n_frames: int, values: dict[str, float] | None = None, on_image=None,

@@ -45,7 +45,7 @@ from ...errors import SceneError
 from ...fields import (Bound, field_value, is_finite_number, is_number, number, pair, show, unknown_fields,
                        where_of)
 from ...latents import Latent, check_bounds
-from ...model import SceneFile
+from ...scenefile import SceneFile
 from ...shapes import Box, Cylinder, Shape
 
 SCENE_VERSION = 1

@@ -9,6 +9,8 @@ no edit anywhere but this folder.
     scene file --scene_from_json--> DropScene (scene.py)
     DropScene --physics.simulate--> Trajectory (physics.py: Bullet via galileo.sim.bullet)
     (scene, Tracks, sigma) --likelihood--> DropLikelihood (Gaussian on v_z per visible frame)
+    DropScene --drawing--> ground, ball, and a spring drawn from a fixed hook to the ball (a
+                           connector whose end follows the ball; drawn only, it exerts no force)
 """
 from __future__ import annotations
 
@@ -17,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from galileo.datatypes import ObjectTrack, Trajectory, Tracks
+from galileo.datatypes import ObjectTrack, Tracks, Trajectory
+from galileo.drawing import Anchor, Connector
 from galileo.errors import GalileoError
 from galileo.latents import Noise
 from galileo.model import Drawing, Mesh, Scenario
@@ -28,6 +31,12 @@ from .scene import BALL, DropScene, e_latent, newton_rebound_mps, scene_from_jso
 
 GROUND_COLOR = (150, 150, 150)
 BALL_COLOR = (220, 60, 160)
+# a drawn spring (drawing only, no force) from a hook this far above the ball's top at release to
+# the ball's top: a connector whose one end follows a body
+HOOK_ABOVE_M = 0.1
+SPRING_COILS = 8
+SPRING_RADIUS_PER_BALL_RADIUS = 0.6
+SPRING_COLOR = (40, 40, 40)
 TRACKS_FILE = "tracks.json"   # `track` reads the tracks from this file next to the video
 
 
@@ -118,13 +127,26 @@ class DropScenario(Scenario):
         return Drawing(static=(Mesh("ground", np.asarray(ground.vertices), np.asarray(ground.faces),
                                     GROUND_COLOR, 0.6),),
                        objects=(Mesh(BALL, np.asarray(ball.vertices), np.asarray(ball.faces), BALL_COLOR),),
-                       ground_z_m=0.0)
+                       ground_z_m=0.0, connectors=(spring(scene),))
+
+    @property
+    def synthetic(self):
+        from galileo.capabilities import Synthetic
+
+        return Synthetic(synthetic_tracks)
 
     def derived(self, scene, values):
         return {"energy_kept": values["e"] ** 2} if "e" in values else {}
 
     def video_timing(self, scene: DropScene):
         return scene.fps, scene.n_frames
+
+
+def spring(scene: DropScene) -> Connector:
+    """The drawn spring: a helix from the hook (fixed, above the release point) to the ball's top."""
+    hook_z_m = scene.height_m + 2 * scene.radius_m + HOOK_ABOVE_M
+    return Connector("spring", Anchor.fixed((0.0, 0.0, hook_z_m)), Anchor.on(0, (0.0, 0.0, scene.radius_m)),
+                     SPRING_COLOR, coils=SPRING_COILS, radius_m=SPRING_RADIUS_PER_BALL_RADIUS * scene.radius_m)
 
 
 def tracks_from(traj: Trajectory, scene: DropScene, *, noise_mps: float = 0.0, seed: int = 0) -> Tracks:
@@ -136,4 +158,14 @@ def tracks_from(traj: Trajectory, scene: DropScene, *, noise_mps: float = 0.0, s
     d = 2 * scene.radius_m
     ball = ObjectTrack(BALL, "ball", pos, vel, np.ones(traj.n_frames, bool), Shape("sphere", (d, d, d)),
                        detected_by="test")
+    return Tracks(traj.fps, [ball])
+
+
+def synthetic_tracks(scene: DropScene, values: dict, rng: np.random.Generator, noise: float) -> Tracks:
+    """The observations the likelihood assumes at `values`: the simulated drop, N(0, noise^2) on its velocities."""
+    traj = physics.simulate(scene.with_values(values), scene.n_frames, fps=scene.fps)
+    vel = traj.velocity_mps[0] + noise * rng.standard_normal(traj.velocity_mps[0].shape)
+    d = 2 * scene.radius_m
+    ball = ObjectTrack(BALL, "ball", traj.position_m[0].copy(), vel, np.ones(traj.n_frames, bool),
+                       Shape("sphere", (d, d, d)), detected_by="test")
     return Tracks(traj.fps, [ball])

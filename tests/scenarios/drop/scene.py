@@ -22,6 +22,7 @@ from galileo.camera import Camera, camera_from_json
 from galileo.errors import SceneError
 from galileo.fields import field_value, number, pair
 from galileo.latents import Latent, check_bounds
+from galileo.scenefile import SceneFile
 
 BALL = "ball"
 E_LIMITS = (0.0, 1.0)
@@ -35,7 +36,7 @@ def e_latent(bounds: tuple[float, float] = E_LIMITS) -> Latent:
 
 
 @dataclass(frozen=True)
-class DropScene:
+class DropScene(SceneFile):
     scenario: ClassVar[str] = "drop"
     height_m: float = 0.4
     radius_m: float = 0.02
@@ -59,6 +60,10 @@ class DropScene:
         if self.camera is not None and (self.camera.fps, self.camera.n_frames) != (self.fps, self.n_frames):
             raise SceneError(f"camera: its fps and n_frames ({self.camera.fps:g}, {self.camera.n_frames}) "
                              f"differ from the scene's ({self.fps:g}, {self.n_frames})")
+
+    def latents(self) -> dict[str, float]:
+        """The latent's value in this scene (its truth when the scene made the observations)."""
+        return {"e": self.restitution}
 
     def with_values(self, values: dict[str, float]) -> "DropScene":
         known = {"e": "restitution", "restitution": "restitution", "height_m": "height_m"}
