@@ -254,3 +254,32 @@ def test_infer_refuses_a_bad_problem_in_one_line_before_tracking(extra, message,
     assert main(["infer", *args, "--out", str(tmp_path / "r.json"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
+
+
+def test_a_problem_runs_on_dask_as_in_process(two_ramps):
+    """A problem crosses process boundaries as plain JSON (each worker builds the summed
+    likelihood): on a Dask worker its chains are the in-process chains bit for bit."""
+    from galileo import batch
+
+    scenes = [s for s, _ in two_ramps]
+    tracks = [t for _, t in two_ramps]
+    prob = registry.problem(scenes, share=["k1"], fixed={"m1_kg@2": 0.3})
+    cfg = RunConfig(chains=2, sweeps=3, seed=5, workers=1)
+    here = infer(prob, tracks, cfg, progress=False)
+    class OnDask:   # the runner's executor slot: anything with `map` (each chain a Dask task)
+        workers = 1
+
+        def __init__(self, client):
+            self.client = client
+
+        def map(self, fn, items):
+            return self.client.gather(self.client.map(fn, list(items), pure=False))
+
+        def shutdown(self):
+            pass
+
+    with batch.open_client(1) as client:
+        there = infer(prob, tracks, cfg, progress=False, executor=OnDask(client))
+    assert there.names == here.names == ("m1_kg@1", "k1")
+    np.testing.assert_array_equal(there.samples, here.samples)
+    np.testing.assert_array_equal(there.logliks, here.logliks)
