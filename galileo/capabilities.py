@@ -8,6 +8,7 @@ datasets) and `galileo.clicks.Calibration` (own-video calibration from clicks).
     Experiments   `galileo experiment`: one video of a dataset -> a record; records -> summary; report sections
     Synthetic     `galileo calibrate`: observations simulated from the likelihood's own model (SBC)
     Recognition   Galileo section 4: what a network reads from one frame and the labels it learns from
+    Question      `galileo predict`: a question a scenario answers from a result (`Scenario.questions`)
 """
 from __future__ import annotations
 
@@ -16,6 +17,8 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
+
+from .fields import Bound
 
 
 @dataclass(frozen=True)
@@ -62,3 +65,18 @@ class Recognition:
     examples: Callable[[Path], list] | None = None
     features: Callable[[Any], Any] | None = None
     label: Callable[..., dict] | None = None
+
+
+@dataclass(frozen=True)
+class Question:
+    """A question `galileo predict` asks a scenario's result (`Scenario.questions`; answered by
+    `Scenario.predict(result, {name: value})`). Its flag is `--<name with dashes>`; `kind`:
+    "number" (checked against `bound` before the result is read), "yes" (a switch) or "file"."""
+    name: str
+    help: str
+    kind: str = "number"
+    bound: Bound | None = None
+
+    @property
+    def flag(self) -> str:
+        return "--" + self.name.replace("_", "-")

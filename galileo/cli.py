@@ -524,6 +524,44 @@ def convergence_line(diag: dict) -> str:
         f"; targets R-hat <= {diag['rhat_target']:g}, ESS >= {diag['min_ess']:g}"
 
 
+def all_questions() -> list:
+    """Every registered scenario's questions for `galileo predict`, each name once."""
+    from . import registry
+
+    seen: dict = {}
+    for name in registry.names():
+        for q in registry.get(name).questions:
+            seen.setdefault(q.name, q)
+    return list(seen.values())
+
+
+def add_questions_when_parsed(parser) -> None:
+    """The scenarios' questions as `parser`'s flags, added when it first parses (importing the
+    scenarios takes a second that every other command would pay if the parser were built with them)."""
+    parse = parser.parse_known_args
+
+    def parse_known_args(args=None, namespace=None):
+        del parser.parse_known_args      # (this instance attribute: the class's method again)
+        from . import registry
+
+        for name in registry.names():
+            s = registry.get(name)
+            qs = [q for q in s.questions if q.flag not in parser._option_string_actions]
+            if not qs:
+                continue
+            group = parser.add_argument_group(f"questions of a {name} result")
+            for q in qs:
+                if q.kind == "yes":
+                    group.add_argument(q.flag, action="store_true", help=q.help)
+                elif q.kind == "number":
+                    group.add_argument(q.flag, type=finite_float, help=q.help)
+                else:
+                    group.add_argument(q.flag, help=q.help)
+        return parse(args, namespace)
+
+    parser.parse_known_args = parse_known_args
+
+
 def cmd_predict(args: argparse.Namespace) -> int:
     import json
 
@@ -532,14 +570,23 @@ def cmd_predict(args: argparse.Namespace) -> int:
     from .jsonio import write_json
     from .results import read_result_json
 
-    if args.angle_deg is not None and not 0 <= args.angle_deg < 90:
-        raise GalileoError(f"--angle-deg must be in [0, 90), got {args.angle_deg:g}")
+    asked = {q.name: (q, getattr(args, q.name)) for q in all_questions()
+             if getattr(args, q.name, None) not in (None, False)}
+    for q, value in asked.values():   # numbers against their bounds, before the result is read
+        if q.kind == "number" and q.bound is not None and not q.bound.contains(value):
+            raise GalileoError(f"{q.flag} must be in {q.bound}, got {value:g}")
     d = read_result_json(args.result)       # a dict with a known scenario, or a one-line error
     scenario = registry.get(d.get("scenario", registry.DEFAULT))
     if is_joint_json(d.get("scene")):
         raise GalileoError(f"{args.result} is a result over several videos or with fixed latents: predict answers "
                            "for one video's result with every latent inferred")
-    out = scenario.predict(args.result, {"angle_deg": args.angle_deg, "target": args.target, "scene": args.scene})
+    own = {q.name for q in scenario.questions}
+    for name, (q, _) in asked.items():
+        if name not in own:
+            raise GalileoError(f"{q.flag} is no question of the {scenario.name} scenario"
+                               + (f"; it answers {', '.join(x.flag for x in scenario.questions)}" if own else
+                                  "; it answers none"))
+    out = scenario.predict(args.result, {q.name: getattr(args, q.name, None) for q in scenario.questions})
     text = json.dumps(out, indent=1)
     if args.out:
         write_json(args.out, out)
@@ -916,11 +963,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     q = sub.add_parser("predict", help="answer the paper's questions from an inference result")
     q.add_argument("--result", required=True, help="result JSON from `galileo infer`")
-    q.add_argument("--angle-deg", type=finite_float, help="will the ramp object move on a ramp of this angle?")
-    q.add_argument("--target", action="store_true", help="where does the target end up (the video's scene)?")
-    q.add_argument("--scene", help="where does the target end up in this scene instead?")
     q.add_argument("--out", type=out_file, help="also write the answers to this JSON file")
     q.set_defaults(func=cmd_predict)
+    add_questions_when_parsed(q)    # each scenario's questions (Scenario.questions) as flags
 
     e = sub.add_parser("experiment", help="the paper's experiments over a rendered dataset on Dask (ramp: Galileo "
                        "section 6; splash: mass correlation and which is heavier), with a report and figures")

@@ -177,6 +177,9 @@ class Scenario(ABC):
         parts += [f"{k} = {v:.3g}" for k, v in self.derived(scene, values).items() if v is not None]
         return ", ".join(parts)
 
+    # what `galileo predict` may ask this scenario's results (galileo.capabilities.Question)
+    questions: tuple = ()
+
     def predict(self, result_path: str | Path, questions: dict) -> dict:
         """Answers to the scenario's questions from a saved result (see `galileo predict`)."""
         from .errors import GalileoError

@@ -257,3 +257,23 @@ def test_synthetic_observations_carry_the_declared_noise(name, observed):
         lik = s.likelihood(p, t, s.noise.default)
         lls.append(lik([truth[lat.name] for lat in s.latents(p)])[0])
     assert lls[0] > lls[1] > lls[2]
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_predict_asks_a_result_only_its_own_scenarios_questions(name, observed, tmp_path, capsys):
+    """`galileo predict`'s flags are every scenario's declared questions; a result is asked only its
+    own scenario's, another's is refused in one line naming the flag."""
+    from galileo.cli import all_questions, main
+    from galileo.runner import RunConfig, infer
+
+    s, scene, tracks, truth = _need_tracks(observed[name])
+    own = {q.name for q in s.questions}
+    foreign = [q for q in all_questions() if q.name not in own]
+    if not foreign:
+        pytest.skip(f"every question is the {name} scenario's own")
+    infer(scene, tracks, RunConfig(chains=2, sweeps=2, seed=0, workers=1), progress=False).save(tmp_path / "r.json")
+    for q in foreign:
+        value = [] if q.kind == "yes" else ["1" if q.kind == "number" else str(tmp_path / "r.json")]
+        assert main(["predict", "--result", str(tmp_path / "r.json"), q.flag, *value]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"{q.flag} is no question of the {name} scenario" in err[-1]

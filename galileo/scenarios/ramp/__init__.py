@@ -134,6 +134,16 @@ class RampScenario(Scenario):
         return ", ".join(f"{k} = {v:.3f}" for k, v in values.items()) + (
             f", m1/m2 = {ratio:.2f}" if ratio is not None else "")
 
+    @property
+    def questions(self):
+        from ...capabilities import Question
+        from ...fields import Bound
+
+        return (Question("angle_deg", "will the ramp object move on a ramp of this angle (degrees)?", "number",
+                         Bound(0.0, 90.0, hi_open=True)),
+                Question("target", "where does the target end up (the video's scene)?", "yes"),
+                Question("scene", "where does the target end up in this scene file instead?", "file"))
+
     def predict(self, result_path: str | Path, questions: dict) -> dict:
         from ...errors import GalileoError
         from .predict import Prediction
