@@ -344,6 +344,7 @@ def run(args) -> int:
     from galileo import registry
     from galileo.results import MIN_ESS
     from ui.controller import Controller
+    from galileo.joint import tracks_list
     from ui.session import VIDEO_FILE, video_files
 
     mode, url = _rerun_mode(args)
@@ -372,7 +373,7 @@ def run(args) -> int:
             raise GalileoError(str(e)) from None
         scene, tracks = ctrl.scene, ctrl.tracks
         video_path = [session / name for name in video_files(session)]
-        n_videos = len(tracks) if isinstance(tracks, (list, tuple)) else 1
+        n_videos = len(tracks_list(tracks))
         if len(video_path) != n_videos:
             ctrl.close()
             raise GalileoError(f"session {session} holds {len(video_path)} video(s) but its problem has {n_videos}")
@@ -411,6 +412,7 @@ def serve(args, ctrl, session: Path, tracks, video_path: list[Path], mode: str, 
     import sys
 
     from galileo.errors import GalileoError
+    from galileo.joint import tracks_list
     from galileo.video import VideoFrames
     from ui.rerun_log import RRD_NAME, ControllerFeed, RerunLogger
     from ui.viewer import Viewer
@@ -418,7 +420,7 @@ def serve(args, ctrl, session: Path, tracks, video_path: list[Path], mode: str, 
     # decoded frame by frame as the viewer shows them, never all held (one per video of the problem)
     videos = [VideoFrames(p) for p in video_path]
     video = videos if len(videos) > 1 else videos[0]
-    first_tracks = tracks[0] if isinstance(tracks, (list, tuple)) else tracks
+    first_tracks = tracks_list(tracks)[0]
     old_rrd = session / RRD_NAME
     if mode != "off" and old_rrd.exists():  # keep the earlier run's recording
         import time as _time

@@ -535,31 +535,36 @@ def all_questions() -> list:
     return list(seen.values())
 
 
-def add_questions_when_parsed(parser) -> None:
-    """The scenarios' questions as `parser`'s flags, added when it first parses (importing the
-    scenarios takes a second that every other command would pay if the parser were built with them)."""
+def on_first_parse(parser, add) -> None:
+    """`add(parser)` when `parser` (a subcommand's) first parses: the flags it adds are the
+    scenarios' own, and importing the scenarios takes a second that every other command would
+    pay if the parser were built with them."""
     parse = parser.parse_known_args
 
     def parse_known_args(args=None, namespace=None):
         del parser.parse_known_args      # (this instance attribute: the class's method again)
-        from . import registry
-
-        for name in registry.names():
-            s = registry.get(name)
-            qs = [q for q in s.questions if q.flag not in parser._option_string_actions]
-            if not qs:
-                continue
-            group = parser.add_argument_group(f"questions of a {name} result")
-            for q in qs:
-                if q.kind == "yes":
-                    group.add_argument(q.flag, action="store_true", help=q.help)
-                elif q.kind == "number":
-                    group.add_argument(q.flag, type=finite_float, help=q.help)
-                else:
-                    group.add_argument(q.flag, help=q.help)
+        add(parser)
         return parse(args, namespace)
 
     parser.parse_known_args = parse_known_args
+
+
+def add_questions(parser) -> None:
+    """The scenarios' questions (`Scenario.questions`) as `parser`'s flags, a group per scenario."""
+    from . import registry
+
+    for name in registry.names():
+        qs = [q for q in registry.get(name).questions if q.flag not in parser._option_string_actions]
+        if not qs:
+            continue
+        group = parser.add_argument_group(f"questions of a {name} result")
+        for q in qs:
+            if q.kind == "yes":
+                group.add_argument(q.flag, action="store_true", help=q.help)
+            elif q.kind == "number":
+                group.add_argument(q.flag, type=finite_float, help=q.help)
+            else:
+                group.add_argument(q.flag, help=q.help)
 
 
 def cmd_predict(args: argparse.Namespace) -> int:
@@ -965,7 +970,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--result", required=True, help="result JSON from `galileo infer`")
     q.add_argument("--out", type=out_file, help="also write the answers to this JSON file")
     q.set_defaults(func=cmd_predict)
-    add_questions_when_parsed(q)    # each scenario's questions (Scenario.questions) as flags
+    on_first_parse(q, add_questions)    # each scenario's questions (Scenario.questions) as flags
 
     e = sub.add_parser("experiment", help="the paper's experiments over a rendered dataset on Dask (ramp: Galileo "
                        "section 6; splash: mass correlation and which is heavier), with a report and figures")
@@ -999,7 +1004,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="add the recognition model's evaluation (the --out folder of `galileo recognize eval`)")
     rp.set_defaults(func=cmd_report)
 
-    from .clicks import add_flags_when_parsed
+    from .clicks import add_flags
 
     sc = sub.add_parser("scene", help="a scene file for your own video, from points clicked on its first frame and "
                         "a few measured numbers (`galileo scene --help`: each scenario's points and numbers)")
@@ -1010,7 +1015,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the scenario's points in the video's first frame (pixels), in its order (below)")
     sc.add_argument("--out", required=True, help="scene JSON for galileo track and galileo infer")
     sc.set_defaults(func=cmd_scene)
-    add_flags_when_parsed(sc)    # each scenario's numbers, from its calibration's fields
+    on_first_parse(sc, add_flags)    # each scenario's numbers, from its calibration's fields
 
     cb = sub.add_parser("calibrate", help="simulation-based calibration (rank histograms, ECDF tests, interval "
                         "coverage) on simulated observations, or interval coverage on a rendered dataset")

@@ -461,17 +461,3 @@ def add_flags(parser) -> None:
             default = "" if f.default is None or f.required else f" (default {f.text(f.default)})"
             g.add_argument(f.flag, dest=f.name, metavar=meta, default=None,
                            help=f"{f.help}{' (needed)' if f.required else default}".replace("%", "%%"))
-
-
-def add_flags_when_parsed(parser) -> None:
-    """`add_flags(parser)` when `parser` (a subcommand's) first parses: the fields are the
-    scenarios' own, and importing the scenarios takes a second that every other command would
-    pay if the parser were built with them."""
-    parse = parser.parse_known_args
-
-    def parse_known_args(args=None, namespace=None):
-        del parser.parse_known_args      # (this instance attribute: the class's method again)
-        add_flags(parser)
-        return parse(args, namespace)
-
-    parser.parse_known_args = parse_known_args
