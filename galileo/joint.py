@@ -284,6 +284,7 @@ class JointScenario(Scenario):
         self.paper_priors = base.paper_priors
         self.paper_widths = base.paper_widths
         self.starts_doc = base.starts_doc
+        self.adaptive_walk = base.adaptive_walk
 
     # -- scenes --------------------------------------------------------------------------------
     def scene_from_json(self, data):
@@ -341,6 +342,9 @@ class JointScenario(Scenario):
         the chain's vector: a shared latent's moves act on the one value, a fixed latent's are
         not made), named `<move>@<v>` when there are several videos."""
         lay = layout(self.base, prepared_scene, prepared_scene.scenes)
+        whole = tuple(self.base.problem_moves(prepared_scene.scenes, lay, bounds))
+        if whole:    # the scenario's moves over the whole problem replace its per-video ones
+            return whole
         n = len(prepared_scene.scenes)
         out = []
         for v, (s, t, row) in enumerate(zip(prepared_scene.scenes, tracks_list(tracks), lay.sources)):
@@ -361,6 +365,9 @@ class JointScenario(Scenario):
         """Each video's starts as its scenario says, read into the flat vector (a shared latent
         from the first video that has it)."""
         lay = layout(self.base, prepared_scene, prepared_scene.scenes)
+        own = self.base.problem_starts(prepared_scene.scenes, lay, n_chains, seed)
+        if own is not None:
+            return np.clip(own, bounds[:, 0], bounds[:, 1])
         starts = np.full((n_chains, len(lay.latents)), np.nan)
         for v, (s, row) in enumerate(zip(prepared_scene.scenes, lay.sources)):
             lats = self.base.latents(s)
@@ -391,6 +398,10 @@ class JointScenario(Scenario):
             for k, val in self.base.derived(s, lay.values(v, pos)).items():
                 out[video_name(k, v, n)] = val
         return out
+
+    def unidentified(self, scene: JointScene) -> dict[str, str]:
+        """The base scenario's, over the problem's videos and fixed latents."""
+        return self.base.not_identified(scene.scenes, scene.fixed)
 
     def summary(self, scene, values):
         parts = [f"{k} = {v:.4g}" for k, v in values.items()]

@@ -33,11 +33,13 @@ class Latent:
     narrow: float = 0.05
     broad: float = 0.5
     integer: bool = False           # takes integer values; proposals move it by +-1 (equal odds)
+    observation: bool = False       # a parameter of the observation noise, not of the physics (noise-free
+                                    # observations do not peak at its value: less noise always fits them better)
 
     def to_json(self) -> dict:
         return {"name": self.name, "unit": self.unit, "bounds": list(self.bounds), "doc": self.doc,
                 "limits": [_json_num(x) for x in self.limits], "narrow": self.narrow, "broad": self.broad,
-                "integer": self.integer}
+                "integer": self.integer, **({"observation": True} if self.observation else {})}
 
 
 @dataclass(frozen=True)

@@ -68,6 +68,9 @@ class Scenario(ABC):
     # the paper's proposal half-widths {latent: (narrow, broad)} where the latents' own (the
     # default move set's starting widths, adapted in warm-up) differ: used with `--moves paper`
     paper_widths: dict = {}
+    # whether the default move set adds the adaptive joint random walk (`galileo.mcmc.JointRW`); a
+    # scenario whose own exact moves follow its posterior's correlations may leave it out
+    adaptive_walk: bool = True
     # where chains start unless the recognition model starts them (`initial_positions`), in words
     # for the app's Chains panel
     starts_doc: str = "drawn from the prior"
@@ -131,6 +134,30 @@ class Scenario(ABC):
         if fn is None:
             raise NotImplementedError(f"the {self.name} scenario's scenes do not say their latents' values")
         return {k: float(v) for k, v in fn().items()}
+
+    def problem_starts(self, prepared_scenes: Sequence, lay, n_chains: int, seed: int) -> np.ndarray | None:
+        """Where chains start in a problem of several videos (`galileo.joint`; `lay` its Layout:
+        the flat latents and where each video's come from), where the videos' starts must agree
+        (one spring's stiffness with each object's mass): (n_chains, D), or None to start each
+        video as `initial_positions` says (a shared latent from the first video). Default: None."""
+        return None
+
+    def problem_moves(self, prepared_scenes: Sequence, lay, bounds: np.ndarray) -> tuple:
+        """Joint moves over a problem of several videos (`galileo.joint`; `lay` its Layout), for
+        moves that need more than one video's latents (one spring's stiffness with every mass
+        on it), in the chain's flat vector; where it makes any, they replace the per-video
+        `moves` in a problem. Default: none."""
+        return ()
+
+    def not_identified(self, prepared_scenes: Sequence, fixed: dict[str, float]) -> dict[str, str]:
+        """The latents (as the problem names them: `name@v` for one video's own in a problem of
+        several) that these videos, with these latents fixed, do not identify, each with why
+        (result.json's "not_identified"). Default: none said."""
+        return {}
+
+    def unidentified(self, scene) -> dict[str, str]:
+        """result.json's "not_identified" for a (prepared) scene: `not_identified([scene], {})`."""
+        return self.not_identified([scene], {})
 
     def shared_latents(self, prepared_scenes: Sequence) -> tuple[str, ...]:
         """The latents the videos of a problem share without being told (`galileo.joint`): one

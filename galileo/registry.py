@@ -15,7 +15,8 @@ from .joint import JointScenario, JointScene, joint_from_json, split_name, video
 from .model import Scenario
 
 DEFAULT = "ramp"
-_BUILTIN = {"ramp": "galileo.scenarios.ramp:RampScenario", "splash": "galileo.scenarios.splash:SplashScenario"}
+_BUILTIN = {"ramp": "galileo.scenarios.ramp:RampScenario", "splash": "galileo.scenarios.splash:SplashScenario",
+            "spring": "galileo.scenarios.spring:SpringScenario"}
 _loaded: dict[str, Scenario] = {}
 
 

@@ -212,6 +212,7 @@ class InferenceResult:
         return {"scenario": self.scenario, "map": self.map, "map_loglik": self.map_loglik, **self.derived(),
                 "converged": diag["converged"], "why_not": diag["why_not"], "notes": list(self.notes),
                 "init": self.init or {"starts": "prior"},
+                "not_identified": registry.of(self.scene).unidentified(self.scene),
                 "posterior": self.posterior(), "posterior_derived": self.derived_posterior(),
                 "diagnostics": diag, "timing_s": self.timing_s,
                 "config": config, "latents": list(self.names), "scene": self.scene.to_json(), "samples_file": None}

@@ -627,7 +627,7 @@ def default_moves(scenario, prepared, tracks: Tracks, latents: Sequence[Latent],
     masses) that learns the posterior's correlations in warm-up."""
     moves = list(scenario.moves(prepared, tracks, latents, bounds))
     sites = [j for j, lat in enumerate(latents) if not lat.integer]
-    if len(sites) >= 2:
+    if len(sites) >= 2 and scenario.adaptive_walk:
         log_sites = [j for j in sites if latents[j].limits[0] >= 0 and bounds[j, 0] > 0 and latents[j].unit != "1"]
         narrow = settings.narrow
         # the first covariance: the narrow widths, and 0.3 in log (a 35 % step) for log sites
