@@ -88,6 +88,8 @@ SEG_SURE = 0.5                 # ... surely the object in this share
 SEG_STILL = 0.5                # surely the scene: like the reference and unlike the object in this share
 ALLOW_PX = 9                   # the object lies within what moves with it, grown by this (track px)
 GRABCUT_ITERATIONS = 5
+GRABCUT_SEED = 0        # GrabCut starts its colour models by k-means from OpenCV's process-wide random state:
+                        # seeded before each call, the outline does not depend on what ran before
 RING_PX = 15                   # the object's surroundings: what lies within this of the region GrabCut finds (track px)
 CORE_FRACTION = 0.9            # the object's thickest part: covered by discs of this fraction of its inscribed one
 OBJECT_FRACTION = 0.3          # the object: what discs of this fraction cover (thinner attachments are cut off)
@@ -399,6 +401,7 @@ def _grabcut(img: np.ndarray, sure_bg: np.ndarray, maybe_fg: np.ndarray, sure_fg
     gc[sure_bg] = cv2.GC_BGD
     if not (np.isin(gc, (cv2.GC_BGD, cv2.GC_PR_BGD)).any() and np.isin(gc, (cv2.GC_FGD, cv2.GC_PR_FGD)).any()):
         return None
+    cv2.setRNGSeed(GRABCUT_SEED)
     cv2.grabCut(np.ascontiguousarray(img), gc, None, np.zeros((1, 65)), np.zeros((1, 65)), GRABCUT_ITERATIONS,
                 cv2.GC_INIT_WITH_MASK)
     region = _fill_holes(np.isin(gc, (cv2.GC_FGD, cv2.GC_PR_FGD)))
