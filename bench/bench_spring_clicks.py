@@ -27,10 +27,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from galileo.camera import backproject_to_plane  # noqa: E402
-from galileo.clicks import calibration_of  # noqa: E402
-from galileo.errors import GalileoError  # noqa: E402
-from galileo.video import VideoInfo  # noqa: E402
+from galileo.camera import backproject_to_plane
+from galileo.clicks import calibration_of
+from galileo.errors import GalileoError
+from galileo.video import VideoInfo
 
 
 def errors(cal, scene, uv, numbers, centre_px, truth) -> tuple[float, float, float]:

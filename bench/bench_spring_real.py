@@ -72,7 +72,7 @@ def main() -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     run = ["--chains", str(args.chains), "--sweeps", str(args.sweeps), "--workers", str(args.workers), "--quiet"]
-    print(f"| unknown | reference | m (g): median | 90% | error | covers 110.3 g | wall, end to end (s) |")
+    print("| unknown | reference | m (g): median | 90% | error | covers 110.3 g | wall, end to end (s) |")
     print("|---|---|---|---|---|---|---|")
     for unknown, ref in (("tight-01", "tight-04"), ("tight-04", "tight-01"), ("loose-02", "loose-03"),
                          ("loose-03", "loose-02")):

@@ -31,8 +31,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from galileo.scenarios.spring.track_eval import align  # noqa: E402
-from galileo.scenarios.spring.tracking import track_pixels  # noqa: E402
+from galileo.scenarios.spring.track_eval import align
+from galileo.scenarios.spring.tracking import track_pixels
 
 DEFAULT_DATA = Path(os.environ.get("GALILEO_PHYS101", ROOT.parent / "shared" / "data" / "phys101"))
 

@@ -16,7 +16,12 @@ from galileo.cli import main
 from galileo.clicks import calibration_of
 from galileo.errors import GalileoError
 from galileo.registry import load_scene
-from galileo.scenarios.spring.clicks import DEFAULT_HFOV_DEG, LINE_RGB, NOMINAL_DISTANCE_M, SCALE_RGB
+from galileo.scenarios.spring.clicks import (
+    DEFAULT_HFOV_DEG,
+    LINE_RGB,
+    NOMINAL_DISTANCE_M,
+    SCALE_RGB,
+)
 from galileo.scenarios.spring.scene import SpringScene
 from galileo.video import VideoInfo
 

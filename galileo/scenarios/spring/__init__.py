@@ -122,10 +122,9 @@ class SpringScenario(Scenario):
     def moves(self, prepared_scene, tracks, latents, bounds):
         """One video alone: its problem's moves (`moves.py`); in a problem of several videos
         `problem_moves` makes them over all the videos at once."""
-        from .moves import problem_moves
+        from .moves import one_video, problem_moves
 
-        sources = (tuple((lat.name, "free", j) for j, lat in enumerate(latents)),)
-        return problem_moves([prepared_scene], sources, [lat.name for lat in latents], bounds)
+        return problem_moves([prepared_scene], one_video(latents), [lat.name for lat in latents], bounds)
 
     def problem_moves(self, prepared_scenes, lay, bounds):
         from .moves import problem_moves

@@ -43,11 +43,25 @@ import math
 
 import numpy as np
 
-from ...camera import CAMERA_DISTANCE_M, FOCAL_PX, Camera, backproject_to_plane, physics_hz
-from ...clicks import Calibration, Field, Point, draw_clicks, draw_lines, line_width, rms_px
+from ...camera import (
+    CAMERA_DISTANCE_M,
+    FOCAL_PX,
+    Camera,
+    backproject_to_plane,
+    physics_hz,
+)
+from ...clicks import (
+    Calibration,
+    Field,
+    Point,
+    draw_clicks,
+    draw_lines,
+    line_width,
+    rms_px,
+)
 from ...errors import GalileoError
 from ...fields import Bound, show
-from .scene import ID, LENGTH, SIM_HZ, SpringScene
+from .scene import ID, LENGTH, SIM_HZ, SpringScene, px_per_m
 
 DEFAULT_HFOV_DEG = 65.0      # not given, the focal length is the image width / (2 tan(this / 2)): a phone's main
 # camera (26 mm equivalent: 69 deg) or a webcam's (60-78 deg); it moves only where the camera stands, not the plane
@@ -140,12 +154,6 @@ def camera_from_clicks(uv, video_info, *, length_m: float | None = None, focal_p
         raise GalileoError(f"a {length_m:g} m segment {seg_px:.0f} px long puts the camera {distance_m:.0f} m from "
                            "the spring: check --length-m (in metres) and --focal-px")
     return cam
-
-
-def px_per_m(cam: Camera, top_in_world_m) -> float:
-    """The scene's scale in the spring's plane: pixels a metre (of the scene's) at the hanging point."""
-    top = np.asarray(top_in_world_m, float)
-    return float(cam.K[0, 0] / (cam.world_to_camera[:3, :3] @ top + cam.world_to_camera[:3, 3])[2])
 
 
 def solve(uv: np.ndarray, v: dict, video_info, frames):

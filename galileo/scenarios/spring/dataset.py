@@ -49,8 +49,15 @@ from ... import dataset
 from ...camera import look_at_camera
 from ...errors import GalileoError
 from ...jsonio import write_json
-from .materials import (BAG_SLACK_M, MATERIALS_BY_NAME, SPRINGS, SPRINGS_BY_NAME, CatalogueObject, Spring,
-                        catalogue)
+from .materials import (
+    BAG_SLACK_M,
+    MATERIALS_BY_NAME,
+    SPRINGS,
+    SPRINGS_BY_NAME,
+    CatalogueObject,
+    Spring,
+    catalogue,
+)
 from .physics import equilibrium_below_top_m, params, period_s, simulate
 from .scene import NOISE_LATENTS, SpringScene
 
@@ -254,5 +261,14 @@ DATASET = dataset.DatasetSpec("spring", PRESETS, plan, render_one,
                                        "full (every object on each spring it fits, 2 takes)")
 
 
-__all__ = ["DATASET", "PRESETS", "VideoSpec", "base_scene", "fit_problem", "plan", "scene_for", "renderer_for",
-           "render_one"]
+__all__ = [
+    "DATASET",
+    "PRESETS",
+    "VideoSpec",
+    "base_scene",
+    "fit_problem",
+    "plan",
+    "render_one",
+    "renderer_for",
+    "scene_for",
+]

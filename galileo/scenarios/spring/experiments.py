@@ -105,7 +105,7 @@ def pair_record(ref_scene, ref_tracks, unk_scene, unk_tracks, config: RunConfig,
     return {"mass_kg": {k: post[m_name][k] for k in keep}, "map_mass_kg": res.map[m_name],
             "k_Npm": {k: post[k_name][k] for k in keep},
             "r_hat": {m_name: diag["r_hat"][m_name], k_name: diag["r_hat"][k_name]},
-            "not_identified": res.to_json()["not_identified"], "seconds": time.perf_counter() - t0}
+            "not_identified": registry.of(res.scene).unidentified(res.scene), "seconds": time.perf_counter() - t0}
 
 
 def run_video(folder: Path, config: RunConfig, executor=None) -> dict:
@@ -192,7 +192,14 @@ def summarise(records: list[dict]) -> dict:
 
 def sections(records: list[dict], fig_dir: Path) -> list:
     """The report's section: the unknown's posterior mass against its truth, with the numbers."""
-    from ...report import Section, diagonal, md_table, new_figure, plain_log_axes, save_figure
+    from ...report import (
+        Section,
+        diagonal,
+        md_table,
+        new_figure,
+        plain_log_axes,
+        save_figure,
+    )
 
     summary = summarise(records)
     pairs = _pairs(records)

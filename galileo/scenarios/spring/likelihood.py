@@ -32,7 +32,7 @@ from ...datatypes import Tracks
 from ...errors import GalileoError
 from ...framelik import FrameLikelihood, RestRule, Run
 from . import physics
-from .scene import NOISE_LATENTS, SpringScene
+from .scene import NOISE_LATENTS, SpringScene, px_per_m
 
 # the spring never rests inside a clip (its damping is small): the rest rule is off (checked at tick 0 only)
 NO_REST = RestRule(speed_mps=0.0, every=1 << 40)
@@ -52,7 +52,7 @@ class _Noise:
 
 
 class _SpringRun(Run):
-    def __init__(self, run: physics.Run, top, scale: float, lik: "SpringLikelihood"):
+    def __init__(self, run: physics.Run, top, scale: float, lik: SpringLikelihood):
         self.run = run
         self.top = top
         self.inv_scale = 1.0 / scale
@@ -88,11 +88,7 @@ class SpringLikelihood(FrameLikelihood):
         self.seen = np.asarray(obj.visible, bool).copy()
         self.seen[: scene.release_frame] = False
         cam = scene.camera
-        top = np.asarray(scene.top_in_world_m, float)
-        self.top = tuple(map(float, top))
-        # pixels per metre at the hanging point (both directions' mean): residuals in pixels
-        self.px_per_m = 0.5 * sum(float(np.linalg.norm(cam.project(top + d) - cam.project(top))) / 0.01
-                                  for d in ((0.01, 0, 0), (0, 0, 0.01)))
+        self.px_per_m = px_per_m(cam, scene.top_in_world_m)     # residuals in pixels
         pos = np.nan_to_num(np.asarray(obj.position_m, float))
         self.obs = [(float(p[0]), float(p[2])) for p in pos]
         n = int(self.seen.sum())

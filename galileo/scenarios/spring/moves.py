@@ -28,6 +28,16 @@ RIDGE_TARGET = 0.3        # warm-up adapts the width towards this acceptance
 SCALE_WIDTH = 0.1
 
 
+def _adapted(width: float, accepted: bool, eta: float, lo: float, hi: float) -> float:
+    """A warm-up update of a move's width towards acceptance RIDGE_TARGET, kept in [lo, hi]."""
+    return float(min(hi, max(lo, width * math.exp(eta * (float(accepted) - RIDGE_TARGET)))))
+
+
+def one_video(latents) -> tuple:
+    """The `sources` of a problem of one video whose latents are all free (`galileo.joint.Layout`'s)."""
+    return (tuple((lat.name, "free", j) for j, lat in enumerate(latents)),)
+
+
 class RidgeMove(NamedTuple):
     ms: int                       # site of the spring's own mass
     k: int                        # site of its stiffness (-1: fixed)
@@ -66,9 +76,8 @@ class RidgeMove(NamedTuple):
         n = (self.k >= 0) + (self.c >= 0) + len(self.others)
         return x, n * math.log(lam)
 
-    def adapted(self, accepted: bool, eta: float) -> "RidgeMove":
-        w = self.width * math.exp(eta * (float(accepted) - RIDGE_TARGET))
-        return self._replace(width=float(min(1.0, max(1e-6, w))))
+    def adapted(self, accepted: bool, eta: float) -> RidgeMove:
+        return self._replace(width=_adapted(self.width, accepted, eta, 1e-6, 1.0))
 
 
 class ScaleMove(NamedTuple):
@@ -99,9 +108,8 @@ class ScaleMove(NamedTuple):
         x[self.scale] = s * lam
         return x, 2 * u
 
-    def adapted(self, accepted: bool, eta: float) -> "ScaleMove":
-        w = self.width * math.exp(eta * (float(accepted) - RIDGE_TARGET))
-        return self._replace(width=float(min(2.0, max(1e-5, w))))
+    def adapted(self, accepted: bool, eta: float) -> ScaleMove:
+        return self._replace(width=_adapted(self.width, accepted, eta, 1e-5, 2.0))
 
 
 def problem_moves(scenes, sources, names, bounds) -> tuple:

@@ -173,13 +173,14 @@ def simulate(scene: SpringScene, n_frames: int, values: dict[str, float] | None 
              fps: float | None = None) -> Trajectory:
     """One plain run, every video frame (before the release: held at the release state)."""
     fps = float(fps or scene.fps)
-    p = params(scene, values)
-    release = scene.with_values(values).release_frame if values and "release_frame" in values else scene.release_frame
+    s = scene.with_values(values) if values else scene
+    p = params(s)
+    release = s.release_frame
     pos = np.empty((1, n_frames, 3))
     vel = np.empty((1, n_frames, 3))
     orn = np.tile(np.array(IDENTITY), (1, n_frames, 1))
     with client_lock:
-        run = Run(p, scene.sim_hz, fps, release)
+        run = Run(p, s.sim_hz, fps, release)
         for f in range(n_frames):
             pos[0, f], vel[0, f] = run.frame(f)
             if f < release:

@@ -35,8 +35,17 @@ import numpy as np
 
 from ...datatypes import Trajectory
 from ...drawing import Anchor, Connector, connector_points
-from ...render import (DEFAULT_LOOK, FAR_M, NEAR_M, Look, block_texture, camera_image, gl_view_projection,
-                       grain_texture, load_texture)
+from ...render import (
+    DEFAULT_LOOK,
+    FAR_M,
+    NEAR_M,
+    Look,
+    block_texture,
+    camera_image,
+    gl_view_projection,
+    grain_texture,
+    load_texture,
+)
 from ...sim.bullet import cached_world, new_world, pb, visual_shape
 from .materials import BAG_SLACK_M, HOOK_M, CatalogueObject, Spring
 from .scene import SpringScene

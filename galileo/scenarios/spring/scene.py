@@ -153,7 +153,7 @@ class SpringScene(SceneFile):
         lo, hi = self.priors.get(key, base.bounds)
         return float(lo), float(hi)
 
-    def with_values(self, values: dict[str, float]) -> "SpringScene":
+    def with_values(self, values: dict[str, float]) -> SpringScene:
         names = self.names()
         extra = {"release_frame": "release_frame", "hang_m": "hang_m", "mass_kg": "mass_kg", "k_Npm": "k_Npm",
                  "spring_mass_kg": "spring_mass_kg", "damping_Nspm": "damping_Nspm", "rest_m": "rest_m",
@@ -269,6 +269,16 @@ def _with_bounds(lat: Latent, bounds: tuple[float, float]) -> Latent:
     except ValueError as err:
         raise SceneError(f"priors.{err}") from None
     return replace(lat, bounds=(lo, hi))
+
+
+def px_per_m(camera: Camera, top_in_world_m) -> float:
+    """The scene's scale in the spring's plane: pixels a metre (of the scene's) at the hanging point,
+    the mean of across and up-down (1 cm each way)."""
+    import numpy as np
+
+    top = np.asarray(top_in_world_m, float)
+    return 0.5 * sum(float(np.linalg.norm(camera.project(top + d) - camera.project(top))) / 0.01
+                     for d in ((0.01, 0.0, 0.0), (0.0, 0.0, 0.01)))
 
 
 def default_camera(top_in_world_m=(0.0, 0.0, 1.0), fps: float = 30.0, n_frames: int = 150) -> Camera:

@@ -20,8 +20,16 @@ from ...camera import backproject_to_plane
 from ...datatypes import ObjectTrack, Tracks
 from ...errors import GalileoError, SceneError
 from ...shapes import Shape
-from .scene import (LATENTS, NOISE_LATENTS, RELEASE_POS_PRIOR_M, RELEASE_SPEED_PRIOR_MPS, SpringScene,
-                    object_latent, spring_latents)
+from .scene import (
+    LATENTS,
+    NOISE_LATENTS,
+    RELEASE_POS_PRIOR_M,
+    RELEASE_SPEED_PRIOR_MPS,
+    SpringScene,
+    object_latent,
+    px_per_m,
+    spring_latents,
+)
 
 FIT_MIN_PERIODS = 1.5       # the track must span this many bounces after the release
 FIT_MIN_FRAMES = 8          # ... and this many frames
@@ -239,8 +247,9 @@ def refine(scene: SpringScene, fit: dict, idx: np.ndarray, pos: np.ndarray) -> d
 
 def starts(scene: SpringScene, latents, bounds: np.ndarray, n_chains: int, seed: int) -> np.ndarray:
     """Where chain c of one video starts (c's start does not depend on n_chains): see `problem_starts`."""
-    sources = (tuple((lat.name, "free", j) for j, lat in enumerate(latents)),)
-    return _starts([scene], sources, np.asarray(bounds, float), n_chains, seed)
+    from .moves import one_video
+
+    return _starts([scene], one_video(latents), np.asarray(bounds, float), n_chains, seed)
 
 
 def problem_starts(scenes, lay, n_chains: int, seed: int) -> np.ndarray:
@@ -317,11 +326,8 @@ def _starts(scenes: list, sources, bounds: np.ndarray, n_chains: int, seed: int)
 
 
 def _rms_px(scene: SpringScene, fit: dict) -> float:
-    """The fit's residual in pixels (its metres at the hanging point's depth)."""
-    cam = scene.camera
-    top = np.asarray(scene.top_in_world_m, float)
-    px_per_m = float(np.linalg.norm(cam.project(top + (0, 0, -0.01)) - cam.project(top)) / 0.01)
-    return fit["rms_m"] * px_per_m
+    """The fit's residual in pixels (its metres at the hanging point's scale)."""
+    return fit["rms_m"] * px_per_m(scene.camera, scene.top_in_world_m)
 
 
 # -- synthetic observations ----------------------------------------------------------------------------
