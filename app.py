@@ -65,15 +65,24 @@ def _calibrated() -> list[str]:
 
 
 def ensure_demo(progress: bool = True, scenario: str | None = None) -> Path:
-    """Render a built-in demo video on first run and cache it (with its scene) under its
-    cache folder (`_demos`)."""
+    """Render a built-in demo on first run and cache it (with its scene) under its cache folder
+    (`_demos`); the folder of the video the app runs: the preset's first (of a preset of
+    several videos too: as one problem, each sweep would take as many times as long)."""
     from galileo import registry
     from galileo.dataset import build
+    from galileo.errors import GalileoError
+    from galileo.jsonio import read_json
 
     demo = DEMOS[scenario or registry.DEFAULT]
-    folder = demo.cache / DEMO_PRESET
-    if not (folder / "video.mp4").exists() or not (folder / "scene.json").exists():
-        build(registry.get(demo.scenario).dataset, DEMO_PRESET, demo.cache, seed=0, workers=1, progress=progress)
+    try:
+        index = read_json(demo.cache / "index.json", "demo index")
+        folder = demo.cache / index["videos"][0]["name"] if index["preset"] == DEMO_PRESET else None
+    except (GalileoError, LookupError, TypeError):    # not rendered yet (or a build was cut short)
+        folder = None
+    if folder is None or not (folder / "video.mp4").exists() or not (folder / "scene.json").exists():
+        entries = build(registry.get(demo.scenario).dataset, DEMO_PRESET, demo.cache, seed=0, workers=1,
+                        progress=progress)
+        folder = demo.cache / entries[0]["name"]
     return folder
 
 

@@ -16,7 +16,7 @@ from .model import Scenario
 
 DEFAULT = "ramp"
 _BUILTIN = {"ramp": "galileo.scenarios.ramp:RampScenario", "splash": "galileo.scenarios.splash:SplashScenario",
-            "spring": "galileo.scenarios.spring:SpringScenario"}
+            "spring": "galileo.scenarios.spring:SpringScenario", "fall": "galileo.scenarios.fall:FallScenario"}
 _loaded: dict[str, Scenario] = {}
 
 

@@ -8,7 +8,9 @@ body in the rendered image (tested against the renderer's segmentation mask).
 Objects get procedural block textures (`block_texture`: corners for the KLT tracker),
 surfaces mild grain (`grain_texture`), both loaded with `load_texture`. Each video has its
 own `Look`: light direction, ambient and diffuse levels (`camera_image` draws with them), a
-slow brightness drift (`Look.gain`) and Gaussian sensor noise. A scenario's own `render.py`
+slow brightness drift (`Look.gain`) and Gaussian sensor noise. Motion blur: a frame is the
+average of renders at sub-frame times over an exposure centred on the frame's time
+(`blur_offsets`, `average_renders`). A scenario's own `render.py`
 builds its world's appearance from these (galileo/scenarios/ramp/render.py,
 galileo/scenarios/splash/render.py).
 """
@@ -31,6 +33,8 @@ NEAR_M, FAR_M = 0.05, 20.0
 RASTER_OFFSET_PX = (0.0, 1.0)
 SPECULAR = 0.05              # the lights' specular coefficient (every look)
 DRIFT_PERIOD_FRAMES = 47.0   # the brightness drift's period
+BLUR_EXPOSURE = 0.5          # motion blur: the shutter is open this share of the frame interval ...
+BLUR_RENDERS = 5             # ... and a frame averages this many renders over it
 
 
 def gl_view_projection(cam: Camera, near: float = NEAR_M, far: float = FAR_M) -> tuple[list[float], list[float]]:
@@ -106,6 +110,27 @@ class Look:
     def gain(self, frame_index: int) -> float:
         """The exposure's gain in video frame `frame_index` (1 without drift)."""
         return 1.0 + self.gain_drift * math.sin(2 * math.pi * frame_index / DRIFT_PERIOD_FRAMES + self.seed % 7)
+
+
+def blur_offsets(exposure: float = BLUR_EXPOSURE, renders: int = BLUR_RENDERS) -> tuple[int, np.ndarray]:
+    """Motion blur's sampling: (n, k) such that the frame at time t averages the renders at
+    t + k / (n fps), k integers centred on 0 (an exposure of `exposure` frame intervals centred
+    on the frame's time, `renders` evenly spaced samples). Simulating at n times the video's
+    rate gives every sample's pose. The defaults: n = 8, k = -2..2."""
+    n = (renders - 1) / exposure
+    if renders < 3 or renders % 2 == 0 or abs(n - round(n)) > 1e-9:
+        raise ValueError(f"motion blur takes an odd number (3 or more) of renders a whole number of sub-frames "
+                         f"apart, got {renders} over {exposure} of a frame")
+    return round(n), np.arange(renders) - (renders - 1) // 2
+
+
+def average_renders(images: list[np.ndarray]) -> np.ndarray:
+    """A blurred frame (float32) from its sub-frame renders (each (H, W, C)): their mean, the light
+    each pixel gathers while the shutter is open."""
+    out = np.zeros(images[0].shape, np.float32)
+    for img in images:
+        out += img
+    return out / len(images)
 
 
 DEFAULT_LOOK = Look((0.3, -1.2, 2.0), 0.6, 0.45, 0.0, 0.0, 0)   # fixed light, no drift, no noise

@@ -255,8 +255,7 @@ class VideoStream:
         frames = self._kept if self._kept is not None else self._decode()
         for f in frames:
             h, w = f.shape[0] * 2 // 3, f.shape[1]
-            u = f[h:h + h // 4].reshape(h // 2, w // 2)
-            v = f[h + h // 4:].reshape(h // 2, w // 2)
+            u, v = f[h:].reshape(2, h // 2, w // 2)   # (the planes by size, not rows: H/2 may be odd)
             uv = np.stack([u, v], axis=-1)
             uv.flags.writeable = False
             yield f[:h], uv

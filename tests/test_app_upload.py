@@ -454,7 +454,7 @@ def test_the_scenario_chooser_offers_the_calibrated_scenarios_and_draws_their_ow
     video, _ = clip
     cal = Calibrator("127.0.0.1", free_port(), tmp_path / "sessions", lambda *a: None)
     try:
-        assert cal.scenario_input.options == ("ramp", "splash", "spring")
+        assert cal.scenario_input.options == ("fall", "ramp", "splash", "spring")
         cal.clip = probe_video(video, "ramp-clip.mp4")
         cal.inputs["angle_deg"].value = "12.5"
         cal.scenario_input.value = "splash"       # (as a browser's change does: its callback runs)

@@ -88,7 +88,7 @@ def test_wrong_clicks_are_refused_in_one_line(demo_dir, tmp_path, capsys, edit, 
     (["--ramp-length-m", ""], "--ramp-length-m is needed: the ramp board's length"),
     (["--target", "sofa"], "--target: expected one of none, cardboard, foam, got 'sofa'"),
     (["--tank-width-m", "0.4"], "--tank-width-m: not for --scenario ramp"),
-    (["--scenario", "fall"], "unknown scenario 'fall'"),
+    (["--scenario", "waves"], "unknown scenario 'waves'"),
 ])
 def test_bad_numbers_are_refused_in_one_line(demo_dir, tmp_path, capsys, flags, needle):
     truth = load_scene(demo_dir / "scene.json")

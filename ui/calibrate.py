@@ -58,6 +58,7 @@ from typing import Callable
 
 import numpy as np
 
+from galileo import registry
 from galileo.clicks import Calibration, NotFound, calibrations, draw_clicks, parse_points, sample_video
 from galileo.errors import GalileoError
 from galileo.video import VideoInfo
@@ -283,7 +284,9 @@ class Calibrator:
         if scenario is not None and scenario not in self.calibrations:
             raise GalileoError(f"the {scenario} scenario has no own-video calibration; these have: "
                                f"{', '.join(self.calibrations)}")
-        self.scenario = scenario or next(iter(self.calibrations))
+        # opens on --scenario, else the default scenario (not the first by name: a new one sorts before it)
+        self.scenario = scenario or (registry.DEFAULT if registry.DEFAULT in self.calibrations
+                                     else next(iter(self.calibrations)))
         self._texts = {n: {f.name: f.text(f.default) for f in c.fields} for n, c in self.calibrations.items()}
         self._start = start
         self._name = name

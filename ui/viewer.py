@@ -145,6 +145,13 @@ def init_markdown(info: dict, names, starts_doc: str = "drawn from the prior") -
     return "  \n".join(parts)
 
 
+def unidentified_markdown(unidentified: dict[str, str]) -> str:
+    """What the videos leave to the prior or cannot tell (`Scenario.unidentified`, result.json's
+    "not_identified": a mass that does not change a fall), for the Chains panel; "" when none."""
+    return "  \n".join(["**Not identified:**"] + [f"{name}: {why}" for name, why in unidentified.items()]
+                       ) if unidentified else ""
+
+
 def recognition_curves(info: dict, names) -> dict:
     """Latent name -> the recognition proposal's density (a function of the latent's value),
     for the latents it reads (its uniform components are the prior's and are not drawn)."""
@@ -645,6 +652,8 @@ class Viewer:
                                                                        uplot.Series(label="chain 0")),
                                           title=TRACE_TITLE, aspect=1.4)
             self.init_text = g.add_markdown(init_markdown(ctrl.init_info, ctrl.names, ctrl.scenario.starts_doc))
+            self.unidentified_text = g.add_markdown(unidentified_markdown(
+                ctrl.scenario.unidentified(ctrl.likelihood_scene)))
             self._recognized = recognition_curves(ctrl.init_info, ctrl.names)
             self.hist_plots = {}
             for n in ctrl.names:

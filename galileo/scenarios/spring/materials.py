@@ -3,7 +3,7 @@ cardboard, hollow wood, hollow plastic, metal coin, plastic block, metal pole, p
 wooden block, rubber, wooden pole, plastic rings, plastic toys), 36 objects of 5-500 g, and the
 two springs, "loose" and "tight".
 
-Densities are real ones (kg/m^3; a hollow object's mass over its outer volume). An object's
+Densities and colours are the seed's (`galileo.materials`, shared by every scenario). An object's
 mass is drawn first, log-uniform in its material's range and stratified (the material's j-th of
 n objects from the j-th of n equal slices of the log range, so every seed's catalogue spans the
 ranges), then its density and proportions; its sizes follow. Shapes, in the world frame (the
@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...materials import SEED_MATERIALS_BY_NAME
 from ...shapes import Shape
 
 MASS_KG = (0.005, 0.5)          # the catalogue's masses (the issue's 5-500 g)
@@ -76,25 +77,28 @@ class Material:
 
 
 BOX_ASPECT = ((0.6, 1.0), (0.5, 1.0))
+
+
+def _material(name: str, kinds, mass_kg, mounts, n_objects: int) -> Material:
+    """The seed's material `name` (its density and colour: `galileo.materials`) as the spring hangs it."""
+    m = SEED_MATERIALS_BY_NAME[name]
+    return Material(name, m.density_kgpm3, kinds, mass_kg, mounts, m.color_rgb, n_objects)
+
+
 MATERIALS: tuple[Material, ...] = (
-    Material("foam", (25, 60), (("box", BOX_ASPECT),), (0.005, 0.025), ("bag",), (236, 226, 90), 3),
-    Material("cardboard", (100, 250), (("box", BOX_ASPECT),), (0.01, 0.06), ("bag", "hook"), (176, 132, 84), 3),
-    Material("hollow wood", (250, 450), (("box", BOX_ASPECT), ("cup", (0.8, 1.5))), (0.015, 0.12), ("hook", "bag"),
-             (150, 100, 60), 3),
-    Material("hollow plastic", (150, 400), (("cup", (1.0, 2.0)), ("box", BOX_ASPECT)), (0.008, 0.06), ("bag",),
-             (60, 170, 200), 3),
-    Material("metal coin", (7000, 8900), (("disc", (0.06, 0.1)),), (0.005, 0.014), ("bag",), (190, 190, 200), 3),
-    Material("plastic block", (1050, 1400), (("box", BOX_ASPECT),), (0.03, 0.25), ("hook", "bag"), (40, 110, 220), 3),
-    Material("metal pole", (2700, 7800), (("pole", (5.0, 8.0)),), (0.25, 0.5), ("hook",), (160, 165, 175), 3),
-    Material("porcelain", (1600, 2400), (("cup", (0.8, 1.3)), ("box", BOX_ASPECT)), (0.06, 0.45), ("bag",),
-             (235, 235, 240), 3),
-    Material("wooden block", (450, 750), (("box", BOX_ASPECT),), (0.04, 0.25), ("bag", "hook"), (205, 160, 100), 3),
-    Material("rubber", (1100, 1500), (("box", BOX_ASPECT), ("cup", (0.5, 1.0))), (0.02, 0.15), ("bag",),
-             (50, 50, 55), 3),
-    Material("wooden pole", (450, 750), (("pole", (5.0, 8.0)),), (0.02, 0.1), ("hook",), (170, 120, 70), 2),
-    Material("plastic rings", (1040, 1100), (("ring", (0.15, 0.3)),), (0.005, 0.04), ("hook",), (60, 200, 90), 2),
-    Material("plastic toys", (400, 900), (("box", BOX_ASPECT), ("cup", (1.0, 1.6))), (0.01, 0.12), ("bag",),
-             (250, 120, 30), 2),
+    _material("foam", (("box", BOX_ASPECT),), (0.005, 0.025), ("bag",), 3),
+    _material("cardboard", (("box", BOX_ASPECT),), (0.01, 0.06), ("bag", "hook"), 3),
+    _material("hollow wood", (("box", BOX_ASPECT), ("cup", (0.8, 1.5))), (0.015, 0.12), ("hook", "bag"), 3),
+    _material("hollow plastic", (("cup", (1.0, 2.0)), ("box", BOX_ASPECT)), (0.008, 0.06), ("bag",), 3),
+    _material("metal coin", (("disc", (0.06, 0.1)),), (0.005, 0.014), ("bag",), 3),
+    _material("plastic block", (("box", BOX_ASPECT),), (0.03, 0.25), ("hook", "bag"), 3),
+    _material("metal pole", (("pole", (5.0, 8.0)),), (0.25, 0.5), ("hook",), 3),
+    _material("porcelain", (("cup", (0.8, 1.3)), ("box", BOX_ASPECT)), (0.06, 0.45), ("bag",), 3),
+    _material("wooden block", (("box", BOX_ASPECT),), (0.04, 0.25), ("bag", "hook"), 3),
+    _material("rubber", (("box", BOX_ASPECT), ("cup", (0.5, 1.0))), (0.02, 0.15), ("bag",), 3),
+    _material("wooden pole", (("pole", (5.0, 8.0)),), (0.02, 0.1), ("hook",), 2),
+    _material("plastic rings", (("ring", (0.15, 0.3)),), (0.005, 0.04), ("hook",), 2),
+    _material("plastic toys", (("box", BOX_ASPECT), ("cup", (1.0, 1.6))), (0.01, 0.12), ("bag",), 2),
 )
 MATERIALS_BY_NAME = {m.name: m for m in MATERIALS}
 
