@@ -25,8 +25,9 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -120,6 +121,25 @@ class Field:
                 raise GalileoError(f"{self.flag}: {typed} is outside {self.bound}")
             nums.append(v)
         return nums[0] if self.size == 1 else tuple(nums)
+
+
+NAME_ID = re.compile(r"^[a-z][a-z0-9]{0,23}$")   # a name that goes into latent names (m_<object>_kg)
+
+
+@dataclass(frozen=True)
+class NameField(Field):
+    """A field whose value is a name (an id: 1-24 lowercase letters and digits, starting with a
+    letter: an object's, a spring's, a surface's), not a number; `names` says which latents it
+    names (for the message)."""
+    names: str = "the latents"
+
+    def parse(self, value):
+        if value is None or (isinstance(value, str) and not value.strip()):
+            return None
+        if not (isinstance(value, str) and NAME_ID.match(value.strip())):
+            raise GalileoError(f"{self.flag}: {show(value)} is not a name: 1-24 lowercase letters and digits, "
+                               f"starting with a letter (it names {self.names})")
+        return value.strip()
 
 
 @dataclass(frozen=True)

@@ -44,6 +44,7 @@ from ...clicks import (
     MIN_CORNER_SINE,
     Calibration,
     Field,
+    NameField,
     Point,
     camera_from_plane,
     check_quad,
@@ -54,9 +55,9 @@ from ...clicks import (
     rms_px,
 )
 from ...errors import GalileoError
-from ...fields import Bound, show
+from ...fields import Bound
 from ...shapes import SHAPE_CLASSES, Shape
-from .scene import ID, SIM_HZ, SURFACE_KINDS, SURFACE_SIZE, FallScene, surface_corners_m
+from .scene import SIM_HZ, SURFACE_KINDS, SURFACE_SIZE, FallScene, surface_corners_m
 
 DEFAULT_HFOV_DEG = 65.0      # where the rectangle does not fix the focal length: the image width / (2 tan(this /
 # 2)), a phone's main camera (26 mm equivalent: 69 deg) or a webcam's (60-78 deg); a Kinect v2's colour camera
@@ -74,19 +75,7 @@ POINTS = (Point("near left", "the rectangle's corner at the camera's end, on the
 ORDER = tuple(p.name for p in POINTS)
 
 
-class NameField(Field):
-    """A field whose value is a name (an id: lowercase letters and digits, starting with a
-    letter, as the scene's `object` and `surface`), not a number."""
-
-    def parse(self, value):
-        if value is None or (isinstance(value, str) and not value.strip()):
-            return None
-        if not (isinstance(value, str) and ID.match(value.strip())):
-            raise GalileoError(f"{self.flag}: {show(value)} is not a name: 1-24 lowercase letters and digits, "
-                               "starting with a letter (it names the latents e_<object>_<surface>, "
-                               "mu_<object>_<surface>)")
-        return value.strip()
-
+NAMED = "the latents e_<object>_<surface>, mu_<object>_<surface>"   # what the name fields name
 
 FIELDS = (
     Field("length_m", "Length", "m", FallScene.surface_size_m[0], "the rectangle's length, from its near edge (the "
@@ -97,9 +86,9 @@ FIELDS = (
           "rectangle (principal point at the image centre, square pixels), or where it is seen too nearly face-on, "
           f"a {DEFAULT_HFOV_DEG:g} deg horizontal field of view", FOCAL_PX),
     NameField("object", "Object", "id", FallScene.object, "the object's name: videos of the same object on the same "
-              "surface share its restitution and friction there"),
+              "surface share its restitution and friction there", names=NAMED),
     NameField("surface", "Surface", "id", FallScene.surface, "the surface's name (this table, this foam mat): "
-              "videos of the same object on it share their restitution and friction"),
+              "videos of the same object on it share their restitution and friction", names=NAMED),
     Field("surface_kind", "Surface kind", "", FallScene.surface_kind, "what the surface is",
           choices=SURFACE_KINDS),
     Field("object_shape", "Shape", "", FallScene().shape.name, "the object's shape (a cylinder lies on its side, "

@@ -37,11 +37,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ...camera import Camera, camera_from_json, check_camera, look_at_camera, physics_hz
+from ...camera import Camera, camera_from_json, look_at_camera, physics_hz
 from ...errors import SceneError
 from ...fields import Bound, field_value, number, show, unknown_fields, where_of
 from ...latents import Latent, check_bounds
-from ...scenefile import SceneFile
+from ...scenefile import SceneFile, bottom_up_of, check_camera_of, priors_of
 from ...shapes import Shape
 
 SCENE_VERSION = 1
@@ -196,11 +196,7 @@ class FallScene(SceneFile):
                              f"[0, {self.n_frames - 1})")
         if abs(physics_hz(self.sim_hz, self.fps) - self.sim_hz) > 1e-9:
             raise SceneError(f"sim_hz ({self.sim_hz:g}) must be a multiple of fps ({self.fps:g})")
-        if self.camera is not None:
-            check_camera(self.camera)
-            if (self.camera.fps, self.camera.n_frames) != (self.fps, self.n_frames):
-                raise SceneError(f"camera: its fps and n_frames ({self.camera.fps:g}, {self.camera.n_frames}) "
-                                 f"differ from the scene's ({self.fps:g}, {self.n_frames})")
+        check_camera_of(self.camera, self.fps, self.n_frames)
         self.latent_specs()   # the priors hold together
 
     def to_json(self) -> dict:
@@ -328,21 +324,8 @@ def scene_from_json(data: Any) -> FallScene:
         kw["shape"] = Shape.from_json(sh)
     except (ValueError, KeyError, TypeError) as err:
         raise SceneError(f"shape: {err}") from None
-    pri = field_value(data, "priors", "", {})
-    if not isinstance(pri, dict):
-        raise SceneError("priors: expected an object {name: [low, high]}")
-    unknown_fields(pri, tuple(PRIORS) + RELEASE_LATENTS, "priors")
-    priors = {}
-    for k, v in pri.items():
-        if not (isinstance(v, list) and len(v) == 2):
-            raise SceneError(f"priors.{k}: expected [low, high], got {show(v)}")
-        priors[k] = (v[0], v[1])
-    kw["priors"] = priors
-    bu = field_value(data, "bottom_up", "", {})
-    if not (isinstance(bu, dict) and all(isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
-                                         and math.isfinite(v) for k, v in bu.items())):
-        raise SceneError("bottom_up: expected an object of finite numbers")
-    kw["bottom_up"] = {k: float(v) for k, v in bu.items()}
+    kw["priors"] = priors_of(data, tuple(PRIORS) + RELEASE_LATENTS)
+    kw["bottom_up"] = bottom_up_of(data)
     cam = field_value(data, "camera", "", None)
     kw["camera"] = camera_from_json(cam) if cam is not None else None
     scene = FallScene(**kw)

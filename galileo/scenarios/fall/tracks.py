@@ -33,6 +33,7 @@ import numpy as np
 from ...datatypes import ObjectTrack, Tracks
 from ...errors import GalileoError
 from ...shapes import Shape
+from ...vision.velocity import velocity_from_positions
 from .scene import (
     NOISE_LATENTS,
     RELEASE_LATENTS,
@@ -113,7 +114,7 @@ def landing_frame(center_px: np.ndarray, seen: np.ndarray, release_frame: int) -
 def from_pixels(center_px: np.ndarray, visible: np.ndarray, fps: float, scene: FallScene, *,
                 release_frame: int, bottom_up: dict | None = None, notes=(), detected_by: str = "fall tracker") -> Tracks:
     """World tracks from the object's centroid in pixels, lifted as the module says; velocities
-    by central differences inside runs of seen frames."""
+    by central differences that keep an impact's jump sharp (`galileo.vision.velocity`)."""
     cam = _camera(scene)
     c = np.asarray(center_px, float)
     seen = np.asarray(visible, bool) & np.isfinite(c).all(axis=1)
@@ -125,13 +126,8 @@ def from_pixels(center_px: np.ndarray, visible: np.ndarray, fps: float, scene: F
         before = seen & (np.arange(len(c)) < land)
         if before.any() and seen[land]:
             pos[before] = on_vertical(cam, c[before], pos[land])
-    vel = np.full_like(pos, np.nan)
-    for f in np.flatnonzero(seen):
-        lo = f - 1 if f > 0 and seen[f - 1] else f
-        hi = f + 1 if f + 1 < len(c) and seen[f + 1] else f
-        if hi > lo:
-            vel[f] = (pos[hi] - pos[lo]) * fps / (hi - lo)
-    vel[seen & ~np.isfinite(vel).all(axis=1)] = 0.0
+    vel = velocity_from_positions(pos, seen, fps)      # (sharp across the impacts)
+    vel[seen & ~np.isfinite(vel).all(axis=1)] = 0.0     # a frame seen alone
     bu = {"release_frame": int(release_frame), "landing_frame": int(land), **(bottom_up or {})}
     obj = ObjectTrack(scene.object, "object", pos, vel, seen, scene.shape, detected_by=detected_by, bottom_up=bu,
                       center_px=c)

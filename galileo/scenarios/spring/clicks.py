@@ -53,6 +53,7 @@ from ...camera import (
 from ...clicks import (
     Calibration,
     Field,
+    NameField,
     Point,
     draw_clicks,
     draw_lines,
@@ -60,8 +61,8 @@ from ...clicks import (
     rms_px,
 )
 from ...errors import GalileoError
-from ...fields import Bound, show
-from .scene import ID, LENGTH, SIM_HZ, SpringScene, px_per_m
+from ...fields import Bound
+from .scene import LENGTH, SIM_HZ, SpringScene, px_per_m
 
 DEFAULT_HFOV_DEG = 65.0      # not given, the focal length is the image width / (2 tan(this / 2)): a phone's main
 # camera (26 mm equivalent: 69 deg) or a webcam's (60-78 deg); it moves only where the camera stands, not the plane
@@ -80,27 +81,16 @@ POINTS = (Point("top", "the hanging point: where the spring hangs from (its top,
           Point("scale end", "the segment's other end"))
 
 
-class NameField(Field):
-    """A field whose value is a name (an id: lowercase letters and digits, starting with a
-    letter, as the scene's `object` and `spring`), not a number."""
-
-    def parse(self, value):
-        if value is None or (isinstance(value, str) and not value.strip()):
-            return None
-        if not (isinstance(value, str) and ID.match(value.strip())):
-            raise GalileoError(f"{self.flag}: {show(value)} is not a name: 1-24 lowercase letters and digits, "
-                               "starting with a letter (it names the latents, e.g. m_<object>_kg, k_<spring>_Npm)")
-        return value.strip()
-
+NAMED = "the latents, e.g. m_<object>_kg, k_<spring>_Npm"   # what the name fields name
 
 FIELDS = (
     Field("length_m", "Length", "m", None, "the length of the segment between the two scale points (the object's "
           "width, a ruler); not given: the scene is not metric (a nominal scale, the camera "
           f"{NOMINAL_DISTANCE_M:g} m away; the scenario infers the scale)", SEGMENT),
     NameField("object", "Object", "id", SpringScene.object, "the object's name: videos of the same object share "
-              "its mass"),
+              "its mass", names=NAMED),
     NameField("spring", "Spring", "id", SpringScene.spring, "the spring's name: videos of the same spring share its "
-              "stiffness, own mass, damping and unloaded length"),
+              "stiffness, own mass, damping and unloaded length", names=NAMED),
     Field("hang_m", "Hang", "m", SpringScene.hang_m, "from the spring's lower end to the object's centre (a hook, a "
           "bag's knot, half the object); an error in it moves the spring's unloaded length by as much", LENGTH),
     Field("focal_px", "Focal", "px", None, "the camera's focal length in pixels; not given: the image width / "

@@ -31,16 +31,15 @@ from the hanging point to the object's centre minus it.
 """
 from __future__ import annotations
 
-import math
 import re
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
-from ...camera import Camera, camera_from_json, check_camera, look_at_camera, physics_hz
+from ...camera import Camera, camera_from_json, look_at_camera, physics_hz
 from ...errors import SceneError
 from ...fields import Bound, field_value, number, show, unknown_fields, where_of
 from ...latents import Latent, check_bounds
-from ...scenefile import SceneFile
+from ...scenefile import SceneFile, bottom_up_of, check_camera_of, priors_of
 
 SCENE_VERSION = 1
 ID = re.compile(r"^[a-z][a-z0-9]{0,23}$")   # an object's or spring's name (it goes into latent names)
@@ -194,11 +193,7 @@ class SpringScene(SceneFile):
             raise SceneError(f"size_m: {list(self.size_m)} must be three sizes in (0, 5] m")
         if self.metric and self.scale != 1.0:
             raise SceneError("scale: a metric scene's scale is 1 (set \"metric\": false to infer it)")
-        if self.camera is not None:
-            check_camera(self.camera)
-            if (self.camera.fps, self.camera.n_frames) != (self.fps, self.n_frames):
-                raise SceneError(f"camera: its fps and n_frames ({self.camera.fps:g}, {self.camera.n_frames}) "
-                                 f"differ from the scene's ({self.fps:g}, {self.n_frames})")
+        check_camera_of(self.camera, self.fps, self.n_frames)
         self.latent_specs()   # the priors hold together
 
     def to_json(self) -> dict:
@@ -327,22 +322,8 @@ def scene_from_json(data: Any) -> SpringScene:
         if not (isinstance(v, list) and len(v) == 3):
             raise SceneError(f"{key}: expected three numbers, got {show(v)}")
         kw[key] = tuple(POSITION.check(x, where_of(key, i)) for i, x in enumerate(v))
-    pri = field_value(data, "priors", "", {})
-    if not isinstance(pri, dict):
-        raise SceneError("priors: expected an object {name: [low, high]}")
-    known = tuple(PRIORS) + RELEASE_LATENTS
-    unknown_fields(pri, known, "priors")
-    priors = {}
-    for k, v in pri.items():
-        if not (isinstance(v, list) and len(v) == 2):
-            raise SceneError(f"priors.{k}: expected [low, high], got {show(v)}")
-        priors[k] = (v[0], v[1])
-    kw["priors"] = priors
-    bu = field_value(data, "bottom_up", "", {})
-    if not (isinstance(bu, dict) and all(isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
-                                         and math.isfinite(v) for k, v in bu.items())):
-        raise SceneError("bottom_up: expected an object of finite numbers")
-    kw["bottom_up"] = {k: float(v) for k, v in bu.items()}
+    kw["priors"] = priors_of(data, tuple(PRIORS) + RELEASE_LATENTS)
+    kw["bottom_up"] = bottom_up_of(data)
     cam = field_value(data, "camera", "", None)
     kw["camera"] = camera_from_json(cam) if cam is not None else None
     scene = SpringScene(**kw)
