@@ -25,8 +25,11 @@ start from its different fits.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import itertools
+import json
 import math
+from collections import OrderedDict
 
 import numpy as np
 
@@ -47,6 +50,7 @@ SEARCH_DRAWS = 3000         # prior draws scored (on the first stage's frames) b
 # (px), Nelder-Mead evaluations per fit, fits kept)
 SEARCH_STAGES = ((4, 8.0, 60, 24), (10, 4.0, 100, 10), (None, 2.0, 150, 8))
 SEARCH_RHO = 0.5
+PREPARED_KEPT = 8           # prepared scenes kept per process (`prepare`)
 START_JITTER = 0.01         # chains start this fraction of each prior's width apart around the fit
 START_NOISE = {"ox_px": 0.0, "oy_px": 0.0, "log10_sigma_px": 0.3, "rho": 0.5}
 Z0_PRIOR_M = 0.10           # the tracked release height +- this (the lift's vertical-fall assumption;
@@ -160,10 +164,27 @@ def _release_of(tracks: Tracks) -> int:
     return int(rf)
 
 
+_PREPARED: OrderedDict[str, FallScene] = OrderedDict()   # the last few prepared scenes, by their inputs
+
+
 def prepare(scene: FallScene, tracks: Tracks) -> FallScene:
     """The scene as inferred on: the tracked release frame, the release state's priors around
     the tracked release (the lift: the landing point, the height on the line of the fall), and
-    the search's best fit in `bottom_up` (see the module docstring)."""
+    the search's fits in `bottom_up` (see the module docstring). Deterministic, and seconds of
+    search: the process keeps the last PREPARED_KEPT (a session reopened, a run resumed, a
+    problem's videos prepared again in its workers)."""
+    key = hashlib.sha256(json.dumps([scene.to_json(), tracks.to_json()], sort_keys=True).encode()).hexdigest()
+    if key in _PREPARED:
+        _PREPARED.move_to_end(key)
+        return _PREPARED[key]
+    out = _prepare(scene, tracks)
+    _PREPARED[key] = out
+    while len(_PREPARED) > PREPARED_KEPT:
+        _PREPARED.popitem(last=False)
+    return out
+
+
+def _prepare(scene: FallScene, tracks: Tracks) -> FallScene:
     obj = tracks.objects[0]
     n = tracks.n_frames
     rf = _release_of(tracks)
