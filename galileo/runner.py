@@ -32,20 +32,29 @@ import math
 import multiprocessing as mp
 import os
 import time
+from collections.abc import Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
-from typing import Iterable, NamedTuple, Sequence
+from typing import NamedTuple
 
 import numpy as np
 
-from .progress import tqdm
 from . import registry
 from .datatypes import Tracks
 from .errors import GalileoError
 from .joint import tracks_from_json, tracks_to_json
-from .latents import Latent, Noise, by_name, check_bounds, check_noise, check_widths, default_widths
+from .latents import (
+    Latent,
+    Noise,
+    by_name,
+    check_bounds,
+    check_noise,
+    check_widths,
+    default_widths,
+)
 from .mcmc import JointRW, MHState, Proposal, adapt, chain_rng, sweep
+from .progress import tqdm
 from .results import MIN_ESS, RHAT_TARGET, InferenceResult, convergence, kept_draws
 
 MOVE_SETS = ("default", "paper")
@@ -68,7 +77,7 @@ class Settings:
     integer_sites: tuple[int, ...] = ()   # which latents take integer values (set by `checked`)
 
     @classmethod
-    def default(cls, latents: Sequence[Latent], noise: Noise, widths: dict | None = None) -> "Settings":
+    def default(cls, latents: Sequence[Latent], noise: Noise, widths: dict | None = None) -> Settings:
         """The latents' bounds and widths and the noise's default; `widths` {latent: (narrow,
         broad)} replaces some latents' widths (a scenario's `paper_widths` under `--moves paper`)."""
         if widths:
@@ -77,7 +86,7 @@ class Settings:
         narrow, broad = default_widths(latents)
         return cls({lat.name: tuple(lat.bounds) for lat in latents}, noise.default, narrow, broad, 20, noise)
 
-    def checked(self, latents: Sequence[Latent], noise: Noise | None = None) -> "Settings":
+    def checked(self, latents: Sequence[Latent], noise: Noise | None = None) -> Settings:
         """A validated copy (ValueError with a one-line reason): bounds for exactly these
         latents (any missing taken from the latents' own), each by `latents.check_bounds`;
         the noise (named by `noise`, default this one's spec) and widths likewise."""
@@ -97,7 +106,7 @@ class Settings:
         integer = tuple(i for i, lat in enumerate(latents) if lat.integer)
         return Settings(bounds, value, narrow, broad, every, spec, integer)
 
-    def copy(self) -> "Settings":
+    def copy(self) -> Settings:
         return Settings({k: (float(v[0]), float(v[1])) for k, v in self.bounds.items()}, self.noise,
                         self.narrow, self.broad, int(self.broad_every), self.noise_spec, self.integer_sites)
 
@@ -116,7 +125,7 @@ class Settings:
                 "narrow": w(self.narrow), "broad": w(self.broad), "broad_every": int(self.broad_every)}
 
     @classmethod
-    def from_json(cls, d: dict, latents: Sequence[Latent], noise: Noise) -> "Settings":
+    def from_json(cls, d: dict, latents: Sequence[Latent], noise: Noise) -> Settings:
         """Parse and check (ValueError on a bad or missing value; every latent needs bounds)."""
         if not isinstance(d, dict) or not isinstance(d.get("bounds"), dict):
             raise ValueError("expected an object with bounds")
@@ -219,7 +228,7 @@ class Problem:
     key: str
 
     @classmethod
-    def of(cls, scene, tracks) -> "Problem":
+    def of(cls, scene, tracks) -> Problem:
         """One video's (scene, Tracks), or a problem's (`galileo.joint.JointScene`, [Tracks per video])."""
         scene_json = scene.to_json()
         tracks_json = tracks_to_json(tracks)
@@ -328,6 +337,10 @@ def _ignore_sigint() -> None:
 
     if mp.parent_process() is not None:  # in a worker: Ctrl-C is the parent's to handle
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        # and a SIGTERM (the pool ending its workers) ends it at once: a forked worker inherits the
+        # parent's handler (`galileo.errors`), which would raise in it and print from its shutdown
+        # onto the parent's stderr
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _ping(_=None) -> int:

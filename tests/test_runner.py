@@ -2,6 +2,7 @@
 injected executor (on the ramp scenario, with the committed demo scene and a tiny run)."""
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -197,3 +198,28 @@ def test_infer_progress_moves_per_sweep_and_the_chains_stay_the_same(frozen, mon
         assert np.array_equal(getattr(shown, k), getattr(plain, k)), k
     for k, v in plain.proposals.items():
         assert np.array_equal(shown.proposals[k], v, equal_nan=v.dtype.kind == "f"), k
+
+
+def test_a_worker_sent_sigterm_ends_at_once_without_the_parents_handler(capfd):
+    """The CLI's SIGTERM handler (`galileo.errors`: raise, then one line) is the parent's: a forked
+    worker must not inherit it, or the pool's SIGTERM to its workers raises in them and their
+    shutdown prints onto the parent's stderr (it broke the parent's one-line 'terminated')."""
+    import signal
+
+    from galileo.errors import _terminated
+    from galileo.runner import LocalPool
+
+    before = signal.signal(signal.SIGTERM, _terminated)
+    try:
+        pool = LocalPool(2)
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    try:
+        pid = pool.pids()[0]
+        proc = pool._procs[pid]
+        os.kill(pid, signal.SIGTERM)
+        proc.join(60)
+        assert proc.exitcode == -signal.SIGTERM      # the default action: ended by the signal, nothing raised
+    finally:
+        pool.shutdown()
+    assert "Terminated" not in capfd.readouterr().err
