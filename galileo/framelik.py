@@ -389,3 +389,15 @@ class FrameLikelihood:
         cache.move_to_end(key)
         while len(cache) > size:
             cache.popitem(last=False)
+
+
+def ar1_residuals(rng: np.random.Generator, shape: tuple, sigma, rho: float) -> np.ndarray:
+    """Residuals (F, ...) of the AR(1) process the scenarios' likelihoods assume: r_0 = e_0,
+    r_f = rho r_(f-1) + sqrt(1 - rho^2) e_f, e_f ~ N(0, sigma^2) (sigma a number or one per
+    column): each r_f is N(0, sigma^2), neighbours correlated by rho (synthetic observations)."""
+    e = rng.standard_normal(shape) * sigma
+    r = np.empty_like(e)
+    r[0] = e[0]
+    for f in range(1, len(e)):
+        r[f] = rho * r[f - 1] + math.sqrt(1 - rho * rho) * e[f]
+    return r

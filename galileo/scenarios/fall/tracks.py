@@ -35,6 +35,7 @@ import numpy as np
 
 from ...datatypes import ObjectTrack, Tracks
 from ...errors import GalileoError
+from ...framelik import ar1_residuals
 from ...shapes import Shape
 from ...vision.velocity import velocity_from_positions
 from .scene import (
@@ -400,11 +401,7 @@ def synthetic_tracks(scene: FallScene, values: dict, rng: np.random.Generator, n
     px = cam.project(traj.position_m[0])
     sigma = math.sqrt(noise ** 2 + 10.0 ** (2 * values.get("log10_sigma_px", 0.0)))
     rho = float(values.get("rho", 0.0))
-    e = rng.standard_normal(px.shape) * sigma
-    r = np.empty_like(e)
-    r[0] = e[0]
-    for f in range(1, len(e)):
-        r[f] = rho * r[f - 1] + math.sqrt(1 - rho * rho) * e[f]
+    r = ar1_residuals(rng, px.shape, sigma, rho)
     px = px + (values.get("ox_px", 0.0), values.get("oy_px", 0.0))
     visible = np.arange(len(px)) >= s.release_frame
     return from_pixels(px + r, visible, scene.fps, s, release_frame=s.release_frame, detected_by="synthetic")

@@ -19,6 +19,7 @@ import numpy as np
 from ...camera import backproject_to_plane
 from ...datatypes import ObjectTrack, Tracks
 from ...errors import GalileoError, SceneError
+from ...framelik import ar1_residuals
 from ...shapes import Shape
 from .scene import (
     LATENTS,
@@ -348,11 +349,7 @@ def synthetic_tracks(scene: SpringScene, values: dict, rng: np.random.Generator,
     px = cam.project(shown)
     sigma = np.array([math.sqrt(noise ** 2 + 10.0 ** (2 * values.get(f"log10_sigma_{a}_px", 0.0))) for a in "xz"])
     rho = float(values.get("rho", 0.0))
-    e = rng.standard_normal(px.shape) * sigma
-    r = np.empty_like(e)
-    r[0] = e[0]
-    for f in range(1, len(e)):
-        r[f] = rho * r[f - 1] + math.sqrt(1 - rho * rho) * e[f]
+    r = ar1_residuals(rng, px.shape, sigma, rho)
     px = px + (values.get("ox_px", 0.0), -values.get("oz_px", 0.0))   # (image y runs down)
     visible = np.arange(len(px)) >= s.release_frame
     return from_pixels(px + r, visible, scene.fps, s, release_frame=s.release_frame, detected_by="synthetic")
