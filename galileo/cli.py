@@ -435,6 +435,12 @@ def cmd_infer(args: argparse.Namespace) -> int:
     warning = warning_of(diag)
     if warning:
         print(f"galileo: warning: {warning}", file=sys.stderr)
+    if doc["map_at_prior_edge"]:
+        edge = ", ".join(f"{k} = {result.map[k]:.3g} (prior {lo:g}-{hi:g})" for k in doc["map_at_prior_edge"]
+                         for lo, hi in [result.settings.bounds[k]])
+        print(f"galileo: warning: the MAP lies at its prior's edge: {edge}; the data pull past the prior (too narrow, "
+              "or something the model leaves out bends this latent): widen it with --priors or read it with care",
+              file=sys.stderr)
     return 0
 
 

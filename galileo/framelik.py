@@ -32,6 +32,12 @@ and where it needs them:
                                      such frame is observed at the state held still)
     horizon(values)                  the last tick a kept run goes on to (default: the last one
                                      observed), so that other alignments can reuse it
+    at_frame(state, values)          the state a video frame sees from its tick's (default: that
+                                     state; frames that fall between ticks interpolate here)
+    frame_poses(seen, run)           each body's pose in that state (default: run.poses())
+    before_start(values)             where an alignment puts frames before tick 0 (a negative
+                                     offset: the run has not begun, e.g. an object still held):
+                                     (state, poses) they are observed at, summed first as a block
     held(state)                      the state the rest rule holds still (default: zero twists,
                                      the rest unchanged)
     Run.skip(first, last)            step through ticks first..last unread (the plain path pays
@@ -188,6 +194,15 @@ class FrameLikelihood:
     def rest_sum(self, f0: int, noise) -> float | None:
         return None
 
+    def at_frame(self, state, values: dict):
+        return state
+
+    def frame_poses(self, seen, run: Run) -> list:
+        return run.poses()
+
+    def before_start(self, values: dict) -> tuple:
+        raise NotImplementedError(f"{type(self).__name__} has frames before its runs start: give before_start")
+
     def held(self, state) -> tuple:
         """The state held still by the rest rule: zero twists, the rest as it was."""
         return (tuple(_STILL for _ in state[0]),) + tuple(state[1:])
@@ -234,6 +249,15 @@ class FrameLikelihood:
             rec = (np.full(shape + (3,), np.nan), np.full(shape + (3,), np.nan), np.full(shape + (4,), np.nan))
         kept = self._kept_for(values, last, record) if (fast and reuse) else None
         first, total = 0, 0.0
+        before = self._frames_before(0, offset, stride)   # frames before the run starts
+        if before:
+            state, poses = self.before_start(values)
+            state = self.at_frame(state, values)
+            pre = float(np.array([self.observe(f, state, noise) for f in range(before)]).sum())
+            if rec is not None:
+                self._record(rec, slice(0, before), None, poses)
+            if log_norm + pre < limit:
+                return pre, True, rec
         states: list | None = None     # the run's states per tick from 0, to keep
         if kept is None:
             run = self.start(values)
@@ -246,8 +270,8 @@ class FrameLikelihood:
                 limit = -math.inf
             first = kept.first_b or 0
             if first:   # the frames before the branch, as one block
-                total = float(np.array([self.observe(f, kept.terms[offset + f * stride], noise)
-                                        for f in range(self._frames_before(first, offset, stride))]).sum())
+                total = float(np.array([self.observe(f, self.at_frame(kept.terms[offset + f * stride], values), noise)
+                                        for f in range(before, self._frames_before(first, offset, stride))]).sum())
                 if log_norm + total < limit:
                     return total, True, rec
             if kept.snapshot is not None:
@@ -262,6 +286,8 @@ class FrameLikelihood:
         every, rest_mps, rest_w2, creep = rule.every, rule.speed_mps, rule.spin_radps ** 2, rule.creep_mps
         speeds: list | None = None
         rest_run = 0
+        if before:
+            total += pre
         f = self._frames_before(first, offset, stride)   # the next frame to score, at tick `due`
         due = offset + f * stride if f < n else -1
         observe = self.observe
@@ -284,12 +310,13 @@ class FrameLikelihood:
                 if rest_run >= 2:
                     return self._at_rest(values, run, state, k, end, f, total, limit, noise, rec, states, branched)
             if k == due:
-                term = observe(f, state, noise)
+                seen = self.at_frame(state, values)
+                term = observe(f, seen, noise)
                 total += term
                 if block is not None:
                     block.append(term)
                 if rec is not None:
-                    self._record(rec, f, state[0], run.poses())
+                    self._record(rec, f, seen[0], self.frame_poses(seen, run))
                 if log_norm + total < limit:
                     return total, True, rec
                 f += 1
@@ -320,7 +347,7 @@ class FrameLikelihood:
         if rest is not None:
             total += rest
         else:
-            held = self.held(state)
+            held = self.at_frame(self.held(state), values)
             log_norm = noise.log_norm
             for g in range(f, n):
                 total += self.observe(g, held, noise)

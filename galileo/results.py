@@ -29,6 +29,7 @@ from .jsonio import atomic_write_bytes, write_json
 MIN_KEPT_DRAWS = 4
 BURN_IN_FRACTION = 0.5  # posterior summaries and R-hat/ESS use the second half of each chain
 RHAT_TARGET = 1.01      # what "converged" means (Vehtari et al. 2021)
+EDGE_FRACTION = 0.01    # a MAP this close to a prior bound (a fraction of the prior's width) is at its edge
 MIN_ESS = 400           # bulk and tail ESS, per latent
 
 
@@ -194,6 +195,23 @@ class InferenceResult:
     def derived(self) -> dict:
         return registry.of(self.scene).derived(self.scene, self.map)
 
+    def at_prior_edge(self) -> list[str]:
+        """The latents whose MAP lies within EDGE_FRACTION of its prior's width from a bound that
+        is not the latent's own limit: the data pull past what the prior allows (a prior too
+        narrow, or the model missing something that the latent bends to absorb); such a MAP is
+        not an estimate of that latent."""
+        specs = getattr(self.scene, "latent_specs", None)
+        limits = {lat.name: lat.limits for lat in specs()} if specs is not None else {}
+        out = []
+        for n, v in self.map.items():
+            lo, hi = self.settings.bounds[n]
+            low, high = limits.get(n, (-math.inf, math.inf))
+            near = EDGE_FRACTION * (hi - lo)
+            # a bound at the latent's own limit (a push of 0, a friction of 0) is no prior to widen
+            if (v - lo <= near and lo > low) or (hi - v <= near and hi < high):
+                out.append(n)
+        return out
+
     def mass_ratio(self) -> float | None:
         return self.derived().get("mass_ratio")
 
@@ -211,6 +229,7 @@ class InferenceResult:
         diag = self.diagnostics()
         return {"scenario": self.scenario, "map": self.map, "map_loglik": self.map_loglik, **self.derived(),
                 "converged": diag["converged"], "why_not": diag["why_not"], "notes": list(self.notes),
+                "map_at_prior_edge": self.at_prior_edge(),
                 "init": self.init or {"starts": "prior"},
                 "not_identified": registry.of(self.scene).unidentified(self.scene),
                 "posterior": self.posterior(), "posterior_derived": self.derived_posterior(),

@@ -62,7 +62,7 @@ def test_the_object_stands_where_the_scored_motion_puts_it(splash_viewer):
     assert {"water", "tank/floor"} <= {m.name for m in v.scenario.drawing(v.scene).static}
     # the readouts and plots hold numbers (uPlot draws nothing for a NaN)
     v.refresh()
-    assert "nan" not in v.sample_text.content and "start_step = " in v.sample_text.content
+    assert "nan" not in v.sample_text.content and "release_s = " in v.sample_text.content
     for plot in (v.trace_plot, *v.hist_plots.values()):
         assert all(np.all(np.isfinite(np.asarray(d, float))) for d in plot.data)
 
@@ -71,7 +71,7 @@ def test_gui_has_inputs_for_each_splash_latent_and_sigma_px(splash_viewer):
     from ui.viewer import parse_numbers
 
     ctrl, v = splash_viewer
-    names = ("area_cm2", "density_g_cm3", "drag_water", "start_step")
+    names = ("area_cm2", "density_g_cm3", "drag_water", "release_s", "push_mps", "volume_factor")
     assert ctrl.names == names
     st = ctrl.settings
     for n in names:
@@ -113,13 +113,15 @@ def test_command_line_moves_and_run_until_converged(capsys):
         assert e.value.code == 2 and why in capsys.readouterr().err
 
 
-def test_steering_keeps_widths_and_integer_latents_valid(splash_viewer):
+def test_steering_keeps_widths_valid(splash_viewer):
+    """(No scenario has an integer latent since the splash's start_step became release_s: the
+    check that one stays on its grid went with it.)"""
     ctrl, _ = splash_viewer
-    with pytest.raises(ValueError, match="2 widths for 4 latents"):
+    with pytest.raises(ValueError, match="2 widths for 6 latents"):
         ctrl.set_widths((0.1, 0.2), 0.5, 20)      # would break every later sweep
     chain = ctrl.chain_ids()[0]
-    ctrl.set_chain(chain, {"start_step": 7.3})
-    assert ctrl.position(chain)["start_step"] == 7.0   # an integer latent stays on its grid
+    ctrl.set_chain(chain, {"release_s": -0.0123})
+    assert ctrl.position(chain)["release_s"] == -0.0123   # a time is set as given, between physics steps too
 
 
 def test_the_first_view_is_not_covered_by_the_video_cameras_frustum(splash_viewer):
@@ -163,4 +165,6 @@ def test_the_chains_panel_says_where_the_splash_starts_its_chains(splash_viewer)
     assert v.init_text.content.startswith("Chains started as the seed starts them: the bottom area at which")
     starts = np.array(list(ctrl.starts().values()))
     j = ctrl.names.index("density_g_cm3")
-    assert np.all(starts[:, j] == 0.5) and len(set(starts[:, ctrl.names.index("area_cm2")])) == 1
+    # the demo's block sinks: every chain at the sinker's start, 1.5 (the seed's 0.5 is a floater's)
+    assert "1.5 for an object the video shows sunk" in v.init_text.content
+    assert np.all(starts[:, j] == 1.5) and len(set(starts[:, ctrl.names.index("area_cm2")])) == 1

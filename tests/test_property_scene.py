@@ -45,7 +45,7 @@ def splash_scene() -> dict:
     """The splash demo's scene (the dataset's demo preset: a 27 cm^3 plastic block)."""
     from galileo.scenarios.splash.scene import default_scene
 
-    return default_scene("box", 27.0, 1.3, 1.05, area_cm2=9.0, start_step=5,
+    return default_scene("box", 27.0, 1.3, 1.05, area_cm2=9.0, release_s=-5 / 240,
                          material="plastic block").to_json()
 
 
@@ -204,7 +204,8 @@ def test_mutated_scene_is_refused_in_one_line_or_simulates_finite(scenario, data
 
 RAMP_NAMES = ["m1_kg", "k1", "m2_kg", "k2", "offset_units", "angle_deg", "e1", "e2", "e_collision",
               "log10_sigma_mps", "mass", ""]
-SPLASH_NAMES = ["area_cm2", "density_g_cm3", "drag_water", "start_step", "volume_cm3", "m1_kg"]
+SPLASH_NAMES = ["area_cm2", "density_g_cm3", "drag_water", "release_s", "push_mps", "volume_factor", "volume_cm3",
+                "start_step", "m1_kg"]
 numbers = (st.floats(allow_nan=True, allow_infinity=True) | st.integers(-10 ** 400, 10 ** 400)
            | st.sampled_from([v for v in SPECIAL if isinstance(v, (int, float)) and not isinstance(v, bool)])
            | st.floats(-1.0, 30.0) | st.floats(-1.0, 1.1) | st.integers(-10, 40))   # near the valid ranges

@@ -246,8 +246,8 @@ def test_draws_outside_the_priors_support_are_dropped():
     from galileo.scenarios.splash.scene import dimensions, default_scene
     from galileo.shapes import Box
 
-    scene = default_scene("vcyl", 20.0, 2.0, 0.7, start_step=12)
-    traj = Simulator(scene).run(30, start_step=12)
+    scene = default_scene("vcyl", 20.0, 2.0, 0.7, release_s=-12 / 240)
+    traj = Simulator(scene).run(30)
     track = ObjectTrack("object", "object", traj.position_m[0], traj.velocity_mps[0], np.ones(30, bool),
                         Box((0.01, 0.01, 0.01)), bottom_up={"kind": "vcyl", "volume_cm3": 20.0})
     splash = registry.get("splash")
@@ -259,5 +259,6 @@ def test_draws_outside_the_priors_support_are_dropped():
     from galileo.recognition.simulation import _draw_values
 
     drawn = _draw_values(splash.latents(splash.prepare(scene, Tracks(scene.fps, [track]))), 24, rng)
-    ok = [d for d in drawn if dimensions("vcyl", 20e-6, d["area_cm2"] * 1e-4, scene.max_dim_m()) is not None]
+    ok = [d for d in drawn   # the volume each draw simulates: the bottom-up 20 cm^3 x its volume factor
+          if dimensions("vcyl", 20e-6 * d["volume_factor"], d["area_cm2"] * 1e-4, scene.max_dim_m()) is not None]
     assert 0 < len(values) < 24 and values == ok

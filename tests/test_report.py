@@ -294,4 +294,4 @@ def test_a_splash_report_draws_mass_and_which_is_heavier(tmp_path):
     text = read_report(build_report(recs, tmp_path))
     assert "splash_mass.png" in text and "splash_which_is_heavier.png" in text
     # predictions equal to the truth: the correlations of log-spaced masses are 1 by rank
-    assert re.search(r"\| videos, converged \| 6 \| [0-9.]+ \| 1 \| n/a \|", text)
+    assert re.search(r"\| videos whose chains agree \| 6 \| [0-9.]+ \| 1 \| n/a \|", text)

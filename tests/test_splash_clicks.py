@@ -168,8 +168,8 @@ def test_galileo_scene_on_the_rendered_splash_demo_tracks_the_object_as_the_trut
 
 
 def test_the_release_point_is_found_from_the_first_two_frames(tmp_path):
-    """A block let go 13 cm above the water, 6 cm left of the middle, shown from physics step
-    30 on (0.125 s after the release: at 1.2 m/s, by frame 1 nearly in the water), rendered;
+    """A block let go 13 cm above the water, 6 cm left of the middle, 0.125 s before frame 0
+    (30 physics steps: at 1.2 m/s, by frame 1 nearly in the water), rendered;
     `find_release` with the true camera. The bound is what the pixels allow: the centroid's
     place within a pixel's footprint on the release plane (1.1 mm here), and the fall between
     frames 0 and 1 within two (its top edge in each within one), which the drop before frame 0
@@ -179,16 +179,16 @@ def test_the_release_point_is_found_from_the_first_two_frames(tmp_path):
     from galileo.scenarios.splash.render import render_to_video
     from galileo.scenarios.splash.scene import Tank, default_camera, default_scene
 
-    start_step, release = 30, (-0.06, 0.0, 0.33)
+    release_s, release = -30 / 240, (-0.06, 0.0, 0.33)
     cam = dataclasses.replace(default_camera(Tank()), n_frames=30)
-    truth = dataclasses.replace(default_scene(density_g_cm3=1.3, camera=cam, start_step=start_step), release_m=release)
+    truth = dataclasses.replace(default_scene(density_g_cm3=1.3, camera=cam, release_s=release_s), release_m=release)
     truth.validate()
     render_to_video(truth, tmp_path / "drop.mp4", 30, look=Look.random(np.random.default_rng(3)), texture_seed=3)
     _, _, frames = sample_video(tmp_path / "drop.mp4")
     x, height = find_release(frames, truth)
     depth_m = (cam.world_to_camera[:3, :3] @ np.asarray(release) + cam.world_to_camera[:3, 3])[2]
     px_m = depth_m / cam.K[0, 0]                      # a pixel's footprint on the release plane
-    t0_over_dt = start_step / truth.sim_hz * cam.fps
+    t0_over_dt = -release_s * cam.fps
     print(f"found x {x:.4f} m, {height:.4f} m above the water; a pixel is {1000 * px_m:.2f} mm")
     assert abs(x - release[0]) < px_m
     assert abs(height - (release[2] - truth.tank.water_level_m)) < px_m * (1 + 2 * t0_over_dt)

@@ -59,20 +59,20 @@ def test_relative_iqr():
 
 
 def test_convergence_rule():
-    assert ex.convergence(rec("a", "a", 10, 10, spread=0.25)) == (True, "")     # the bound is inclusive
-    assert ex.convergence(rec("a", "a", 10, 10, spread=0.0)) == (True, "")
-    ok, why = ex.convergence(rec("a", "a", 10, 10, spread=0.26))
+    assert ex.chains_agree(rec("a", "a", 10, 10, spread=0.25)) == (True, "")     # the bound is inclusive
+    assert ex.chains_agree(rec("a", "a", 10, 10, spread=0.0)) == (True, "")
+    ok, why = ex.chains_agree(rec("a", "a", 10, 10, spread=0.26))
     assert not ok and why.startswith("chains disagree") and "0.26 of the median" in why
     # R-hat is not the rule (chains that agree, R-hat 3: converged; R-hat 1.01, chains apart: not)
-    assert ex.convergence(rec("a", "a", 10, 10, spread=0.1, r_hat=3.0))[0]
-    assert not ex.convergence(rec("a", "a", 10, 10, spread=0.6, r_hat=1.01))[0]
+    assert ex.chains_agree(rec("a", "a", 10, 10, spread=0.1, r_hat=3.0))[0]
+    assert not ex.chains_agree(rec("a", "a", 10, 10, spread=0.6, r_hat=1.01))[0]
     assert ex.rhat_converged(rec("a", "a", 10, 10, r_hat=1.09)) and not ex.rhat_converged(rec("a", "a", 10, 10, r_hat=1.1))
     assert not ex.rhat_converged(rec("a", "a", 10, 10, r_hat=None))
     for chains, sweeps in ((1, 40), (16, 7)):
-        ok, why = ex.convergence(rec("a", "a", 10, 10, chains=chains, sweeps=sweeps))
+        ok, why = ex.chains_agree(rec("a", "a", 10, 10, chains=chains, sweeps=sweeps))
         assert not ok and why.startswith("too short a run")
-    assert ex.convergence(rec("a", "a", 10, 10, chains=2, sweeps=8))[0]
-    ok, why = ex.convergence(rec("a", "a", 10, error="tracking: nothing moves"))
+    assert ex.chains_agree(rec("a", "a", 10, 10, chains=2, sweeps=8))[0]
+    ok, why = ex.chains_agree(rec("a", "a", 10, error="tracking: nothing moves"))
     assert (ok, why) == (False, "tracking: nothing moves")
 
 
@@ -150,8 +150,8 @@ def test_summary_over_converged_only():
                rec("v4", "C", 40, 33), rec("v5", "D", 5, 4), rec("v6", "E", 30, 1, spread=0.7, r_hat=1.05),
                rec("v7", "F", 7, error="tracking: lost"), rec("v8", "G", 3, 2, sweeps=4)]
     s = ex.summarise(records)
-    assert (s["videos"], s["predicted"], s["converged"], s["r_hat_below_1_1"]) == (8, 7, 5, 2)
-    reasons = {d["video"]: d["reason"] for d in s["not_converged"]}
+    assert (s["videos"], s["predicted"], s["chains_agree"], s["r_hat_below_1_1"]) == (8, 7, 5, 2)
+    reasons = {d["video"]: d["reason"] for d in s["chains_disagree"]}
     assert set(reasons) == {"v6", "v7", "v8"}
     assert reasons["v7"] == "tracking: lost" and "disagree" in reasons["v6"] and "too short" in reasons["v8"]
     true, pred = [10, 10, 20, 40, 5], [12, 8, 25, 33, 4]
@@ -241,7 +241,8 @@ def test_experiment_end_to_end_on_the_demo(demo_dataset, tmp_path, capsys):
     report = json.loads((out / "report.json").read_text())
     assert report["scenario"] == "splash" and report["config"]["chains"] == 2 and report["config"]["sweeps"] == 2
     s = report["summary"]
-    for key in ("videos", "predicted", "converged", "convergence_rule", "not_converged", "mass_correlation",
+    for key in ("videos", "predicted", "converged", "chains_agree", "agreement_rule", "chains_disagree",
+                "mass_correlation",
                 "which_is_heavier", "seconds_per_video", "seed"):
         assert key in s
     assert set(s["which_is_heavier"]) == {"easy", "medium", "hard"}
@@ -249,16 +250,19 @@ def test_experiment_end_to_end_on_the_demo(demo_dataset, tmp_path, capsys):
     demo, broken = (json.loads((out / "records" / f"{n}.json").read_text()) for n in ("demo", "broken"))
     assert broken["status"] == "failed" and broken["error"].startswith("tracking: ") and "\n" not in broken["error"]
     # 2 chains x 2 sweeps is too short a run to judge: nothing converged
-    assert s["converged"] == 0 and s["mass_correlation"]["videos"]["pearson_r"] is None
-    assert "too short" in next(d["reason"] for d in s["not_converged"] if d["video"] == "demo")
-    assert {d["video"] for d in s["not_converged"]} == {"demo", "broken"}
+    assert s["chains_agree"] == 0 and s["mass_correlation"]["videos"]["pearson_r"] is None
+    assert s["converged"] == 0     # galileo infer's verdict: 2 x 2 is no converged posterior either
+    assert "too short" in next(d["reason"] for d in s["chains_disagree"] if d["video"] == "demo")
+    assert {d["video"] for d in s["chains_disagree"]} == {"demo", "broken"}
     truth = json.loads((demo_dataset / "demo" / "truth.json").read_text())["latents"]
     assert demo["truth"]["mass_kg"] == truth["mass_kg"] and demo["bottom_up"]["kind"] in ("box", "vcyl", "hcyl")
-    # the prediction: median over chains of final density x the bottom-up volume (g -> kg)
+    # the MAP's mass: density x volume, the bottom-up volume x the volume factor (g -> kg); the
+    # prediction (the median over chains of the same product) needs each chain's final factor,
+    # which the record does not hold
     dens = np.array(demo["final_density_g_cm3"])
     assert len(dens) == 2 and demo["chains"] == 2 and demo["sweeps"] == 2
-    assert demo["mass_kg"] == pytest.approx(np.median(dens) * demo["bottom_up"]["volume_cm3"] / 1000)
-    assert demo["map_mass_kg"] == pytest.approx(demo["map"]["density_g_cm3"] * demo["bottom_up"]["volume_cm3"] / 1000)
+    v0 = demo["bottom_up"]["volume_cm3"]
+    assert demo["map_mass_kg"] == pytest.approx(demo["map"]["density_g_cm3"] * demo["map"]["volume_factor"] * v0 / 1000)
     # the report and its figures, and `galileo report` rebuilding them from the table alone
     md = (out / "report.md").read_text()
     assert "which is heavier" in md.lower() and "nan" not in md

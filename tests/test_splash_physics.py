@@ -118,7 +118,7 @@ def test_terminal_velocity_matches_the_drag_law():
 
 
 def test_a_denser_body_of_the_same_shape_sinks_faster():
-    light, heavy = (default_scene("vcyl", 20.0, rho, 0.8) for rho in (1.3, 2.6))
+    light, heavy = (default_scene("vcyl", 20.0, rho, 0.8, release_s=0.0) for rho in (1.3, 2.6))   # frame 0: the release
     z_light = Simulator(light).run(12).position_m[0, :, 2]
     z_heavy = Simulator(heavy).run(12).position_m[0, :, 2]
     assert z_heavy[-1] < z_light[-1] - 0.01
@@ -127,7 +127,7 @@ def test_a_denser_body_of_the_same_shape_sinks_faster():
 def test_in_air_without_drag_the_fall_is_mass_independent():
     """Before it reaches the water, an object without drag falls the same whatever its density
     (bit for bit), and as Newton says: z = z0 - g t^2 / 2 up to the step's discretisation."""
-    a, b = (default_scene("box", 20.0, rho, 0.0) for rho in (0.3, 2.5))
+    a, b = (default_scene("box", 20.0, rho, 0.0, release_s=0.0) for rho in (0.3, 2.5))   # frame 0: the release
     ta, tb = Simulator(a).run(4), Simulator(b).run(4)
     assert np.array_equal(ta.position_m, tb.position_m)
     t = np.arange(4) / 30.0

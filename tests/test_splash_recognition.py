@@ -1,7 +1,7 @@
 """Recognition (Galileo section 4) in the splash scenario: the object's mass read from one frame
 becomes a density start (mass = density x the bottom-up volume), Galileo labels are the MAP
-density times that volume, examples come from a splash dataset's index, and the patch of
-the demo object is centred on it."""
+density times the volume (the bottom-up one times the MAP's volume factor), examples come
+from a splash dataset's index, and the patch of the demo object is centred on it."""
 import json
 import math
 import shutil
@@ -53,13 +53,16 @@ def test_readout_turns_a_mass_reading_into_a_density(demo):
     assert all(k == "uniform" for i, k in enumerate(q.kinds) if i != j)
 
 
-def test_label_is_map_density_times_bottom_up_volume(demo):
+def test_label_is_map_density_times_volume(demo):
+    """The label is the MAP's mass: density x the volume, the bottom-up volume x the MAP's
+    volume factor (1.3 here: the object is 30% larger than tracking measured)."""
     _, _, _, tracks, prepared = demo
     splash = registry.get("splash")
-    values = {"area_cm2": 9.0, "density_g_cm3": 1.25, "drag_water": 0.9, "start_step": 5.0}
+    values = {"area_cm2": 9.0, "density_g_cm3": 1.25, "drag_water": 0.9, "release_s": -5 / 240, "push_mps": 0.0,
+              "volume_factor": 1.3}
     lab = splash.recognition_label(prepared, tracks, values)
     assert set(lab) == {"object"} and lab["object"]["friction"] is None
-    assert lab["object"]["mass_kg"] == pytest.approx(1.25 * prepared.obj.volume_cm3 / 1000.0, rel=1e-12)
+    assert lab["object"]["mass_kg"] == pytest.approx(1.25 * 1.3 * prepared.obj.volume_cm3 / 1000.0, rel=1e-12)
     assert lab["object"]["mass_kg"] == pytest.approx(splash.derived(prepared, values)["mass_kg"], rel=1e-12)
 
 
@@ -110,7 +113,9 @@ def test_features_describe_the_prepared_scene(demo):
     _, _, scene, _, prepared = demo
     f = registry.get("splash").recognition_features(prepared)
     assert f.shape == (6,) and np.isfinite(f).all()
-    assert list(f[:3]) == [1.0, 0.0, 0.0]                       # a box
+    from galileo.scenarios.splash.scene import KINDS
+
+    assert list(f[:3]) == [float(k == prepared.obj.kind) for k in KINDS]   # the tracker's kind
     assert f[3] == pytest.approx(math.log(prepared.obj.volume_cm3))
     assert f[4] == pytest.approx(0.15) and f[5] == 0.0          # let go 15 cm above the water, mid-tank
 

@@ -42,8 +42,8 @@ def test_object_where_truth_puts_it_and_water_tinted():
     scene, r = _renderer()
     shots = {}
     traj = r.render(20, on_image=lambda f, rgb, seg: shots.__setitem__(f, (rgb, seg)), with_segmentation=True)
-    # video frame 0 is physics step start_step (a separate, non-visual simulation)
-    sim = Simulator(scene).run(20, start_step=scene.start_step)
+    # the same video frames from a separate, non-visual simulation
+    sim = Simulator(scene).run(20)
     np.testing.assert_allclose(traj.position_m[0], sim.position_m[0], atol=1e-9)
     cam = scene.camera
     for f in (0, 3, 8, 19):       # falling through the air and the water, then on the floor
@@ -78,7 +78,8 @@ def test_dataset_files(demo):
     truth = json.loads((folder / "truth.json").read_text())
     lat = truth["latents"]
     assert lat["mass_kg"] == pytest.approx(lat["density_g_cm3"] * lat["volume_cm3"] * 1e-3, rel=1e-12)
-    assert lat["start_step"] == scene.start_step and 5 <= lat["start_step"] <= 30
+    # the demo: let go at rest 5 physics steps (at 240 Hz) before frame 0, the seed's earliest start
+    assert lat["release_s"] == scene.release_s == pytest.approx(-5 / 240) and lat["push_mps"] == scene.push_mps == 0
     assert len(truth["trajectory"]["objects"][0]["position_m"]) == scene.camera.n_frames == 60
     from galileo.video import read_video
 

@@ -22,7 +22,7 @@ from galileo.shapes import Shape
 from conftest import DATA
 
 RAMP = json.loads((DATA / "scene.json").read_text())
-SPLASH = splash.default_scene("box", 27.0, 1.3, 1.05, area_cm2=9.0, start_step=5).to_json()
+SPLASH = splash.default_scene("box", 27.0, 1.3, 1.05, area_cm2=9.0, release_s=-5 / 240).to_json()
 
 
 def run_cli(args):
@@ -120,7 +120,15 @@ def test_types_and_finite_values(tmp_path, change, message):
     (SPLASH, (("object", "drag_water"), -1), "object.drag_water: -1 is outside [0, 100]"),
     (SPLASH, (("object", "volume_cm3"), 500), "object.volume_cm3: 500 is outside [0.01, 100]"),
     (SPLASH, (("object", "area_cm2"), 1e308), "object.area_cm2: 1e+308 is outside (0, 1000]"),
-    (SPLASH, (("start_step",), 1001), "start_step: 1001 is outside [0, 1000]"),
+    (SPLASH, (("release_s",), 61), "release_s: 61 is outside [-4, 60]"),
+    (SPLASH, (("release_s",), -5), "release_s: -5 is outside [-4, 60]"),
+    (SPLASH, (("release_s",), "x"), "release_s: expected a number, got 'x'"),
+    (SPLASH, (("release_s",), math.nan), "release_s: expected a finite number, got nan"),
+    (SPLASH, (("push_mps",), -0.1), "push_mps: -0.1 is outside [0, 5]"),
+    (SPLASH, (("push_mps",), 6), "push_mps: 6 is outside [0, 5]"),
+    (SPLASH, (("volume_factor",), 0), "volume_factor: 0 is outside (0, 100]"),
+    (SPLASH, (("volume_factor",), 101), "volume_factor: 101 is outside (0, 100]"),
+    (SPLASH, (("volume_factor",), 4), "object.volume_cm3 x volume_factor: 108.0 is outside [0.01, 100]"),
     (SPLASH, (("tank", "size_m"), [5, 0.16, 0.3]), "tank.size_m[0]: 5 is outside [0.02, 3]"),
     (SPLASH, (("tank", "water_level_m"), 0.3), "tank.water_level_m: 0.3 is outside (0, 0.3)"),
     (SPLASH, (("tank", "water_density_kg_m3"), 1e5), "tank.water_density_kg_m3: 100000.0 is outside [1, 5000]"),
@@ -141,9 +149,6 @@ def test_ranges_name_the_field_and_the_bound(tmp_path, base, change, message):
     (RAMP, (("camera", "n_frames"), 60.5), "camera.n_frames: expected an integer, got 60.5"),
     (RAMP, (("priors", "offset_units"), [-5.5, 5]), "priors.offset_units: expected [low, high], two integers, got "
      "[-5.5, 5]"),
-    (SPLASH, (("start_step",), 4.5), "start_step: expected an integer, got 4.5"),
-    (SPLASH, (("priors", "start_step"), [5.5, 30]), "priors.start_step: expected [low, high], two integers, got "
-     "[5.5, 30]"),
 ])
 def test_whole_numbers_are_refused_not_truncated(tmp_path, base, change, message):
     assert_refused(tmp_path, mutated(base, change), message)
@@ -204,8 +209,9 @@ def test_singular_camera_no_longer_reaches_tracking(tmp_path):
     (RAMP, [(("sim_hz",), 9990), (("camera", "n_frames"), 100000)],
      "camera.n_frames: 100000 frames at 30 fps are 33299667 physics steps at sim_hz 9990, more than 2000000 "
      "(shorten the video or lower sim_hz)"),
+    # 299 frames x 9000 steps + the release 5/240 s before frame 0 (187.5 steps at 9000 Hz, rounded to 188)
     (SPLASH, [(("sim_hz",), 9000), (("camera", "fps"), 1), (("camera", "n_frames"), 300)],
-     "camera.n_frames: 300 frames at 1 fps are 2691005 physics steps at sim_hz 9000, more than 2000000 (shorten "
+     "camera.n_frames: 300 frames at 1 fps are 2691188 physics steps at sim_hz 9000, more than 2000000 (shorten "
      "the video or lower sim_hz)"),
 ])
 def test_total_physics_steps_are_bounded(tmp_path, base, changes, message):
@@ -254,8 +260,13 @@ def test_a_duplicated_object_is_refused(tmp_path):
     (SPLASH, (("priors", "drag_water"), [0, 2]), "priors.drag_water: bounds must be > 0, got a low bound of 0"),
     (SPLASH, (("priors", "density_g_cm3"), [1e-4, 2]),
      "priors.density_g_cm3: bounds must be >= 0.001 g/cm^3, got a low bound of 0.0001"),
-    (SPLASH, (("priors", "start_step"), [10, 10]),
-     "priors.start_step: the low bound (10) must be below the high bound (10)"),
+    (SPLASH, (("priors", "release_s"), [0.1, 0.1]),
+     "priors.release_s: the low bound (0.1) must be below the high bound (0.1)"),
+    (SPLASH, (("priors", "release_s"), [-5, 1]), "priors.release_s: bounds must be >= -4 s, got a low bound of -5"),
+    (SPLASH, (("priors", "push_mps"), [0, 6]), "priors.push_mps: bounds must be <= 5 m/s, got a high bound of 6"),
+    (SPLASH, (("priors", "volume_factor"), [0, 2]), "priors.volume_factor: bounds must be > 0, got a low bound of 0"),
+    (SPLASH, (("priors", "start_step"), [5, 30]), "priors.start_step: unknown field; expected one of area_cm2, "
+     "density_g_cm3, drag_water, release_s, push_mps, volume_factor"),
 ])
 def test_priors_are_proper(tmp_path, base, change, message):
     assert_refused(tmp_path, mutated(base, change), message)
@@ -333,7 +344,13 @@ def test_scenes_built_in_code_are_validated():
     ({"log10_sigma_mps": 1e308}, "log10_sigma_mps: 1e+308 is outside [-4, 1]"),
     ({"offset_units": 30.0}, "objects[0]: starts 1.235 m up the ramp, beyond its length_m 0.9"),
 ]] + [(SPLASH, v, m) for v, m in [
-    ({"start_step": 5.5}, "start_step: expected an integer, got 5.5"),
+    ({"release_s": 61.0}, "release_s: 61.0 is outside [-4, 60]"),
+    ({"release_s": math.nan}, "release_s: expected a finite number, got nan"),
+    ({"release_s": "x"}, "release_s: expected a number, got 'x'"),
+    ({"push_mps": -0.5}, "push_mps: -0.5 is outside [0, 5]"),
+    ({"volume_factor": 0.0}, "volume_factor: 0.0 is outside (0, 100]"),
+    ({"start_step": 5}, "unknown name 'start_step'; expected one of area_cm2, density_g_cm3, drag_water, release_s, "
+     "push_mps, volume_factor, volume_cm3"),
     ({"density_g_cm3": 1e308}, "density_g_cm3: 1e+308 is outside [0.001, 25]"),
     ({"volume_cm3": 0.0}, "volume_cm3: 0.0 is outside [0.01, 100]"),
     ({"drag_water": -1.0}, "drag_water: -1.0 is outside [0, 100]"),
@@ -389,7 +406,8 @@ def test_latent_limits_are_the_scene_bounds():
     from galileo.scenarios.ramp import RampScenario
     assert RampScenario.noise.limits == ramp.SIGMA_LIMITS_MPS
     for name, bound in (("area_cm2", splash.AREA_CM2), ("density_g_cm3", splash.DENSITY_G_CM3),
-                        ("drag_water", splash.DRAG_WATER), ("start_step", splash.START_STEP)):
+                        ("drag_water", splash.DRAG_WATER), ("release_s", splash.RELEASE_S),
+                        ("push_mps", splash.PUSH_MPS), ("volume_factor", splash.VOLUME_FACTOR)):
         assert splash.LATENT_SPECS[name].limits == (bound.lo, bound.hi)
 
 
@@ -415,7 +433,8 @@ SPLASH_EDGES = [
     [(("object", "density_g_cm3"), 25), (("object", "drag_water"), 100), (("gravity_mps2",), 100)],
     [(("object", "density_g_cm3"), 0.001), (("object", "drag_water"), 0), (("gravity_mps2",), 5e-324)],
     [(("object", "volume_cm3"), 100), (("object", "area_cm2"), 25), (("release_m",), [0, 0, 1.2]),
-     (("start_step",), 1000)],
+     (("release_s",), -4), (("push_mps",), 5)],
+    [(("release_s",), 60), (("camera", "n_frames"), 20), (("volume_factor",), 0.0004), (("object", "area_cm2"), 0.05)],
     [(("object", "volume_cm3"), 0.01), (("object", "area_cm2"), 0.05), (("tank", "water_density_kg_m3"), 5000)],
     [(("sim_hz",), 60), (("camera", "fps"), 60), (("tank", "water_density_kg_m3"), 1)],
 ]

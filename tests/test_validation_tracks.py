@@ -302,7 +302,7 @@ def test_the_splash_likelihood_refuses_a_sigma_that_is_no_noise(sigma):
     from galileo.scenarios.splash.scene import default_scene
     from galileo.shapes import Box
 
-    scene = default_scene("vcyl", 20.0, 2.0, 0.7, start_step=12)
+    scene = default_scene("vcyl", 20.0, 2.0, 0.7, release_s=-12 / 240)
     n = 5
     track = ObjectTrack("object", "object", np.zeros((n, 3)), np.zeros((n, 3)), np.ones(n, bool),
                         Box((0.01, 0.01, 0.01)))
@@ -497,7 +497,7 @@ def test_the_splash_tracker_checks_the_video_too(tmp_path):
     from galileo.video import VideoMismatch
     import dataclasses
 
-    scene = default_scene("vcyl", 20.0, 2.0, 0.7, start_step=12)
+    scene = default_scene("vcyl", 20.0, 2.0, 0.7, release_s=-12 / 240)
     cam = scene.camera
     scene = dataclasses.replace(scene, camera=look_at_camera((0, -1, 0.2), (0, 0, 0.2), width_px=W, height_px=H,
                                                              fps=cam.fps, n_frames=N))

@@ -606,15 +606,15 @@ def scene_from_json(data: Any) -> Scene:
     scenario = field_value(data, "scenario", "", "ramp")
     if scenario != "ramp":
         raise SceneError(f"scenario: this is the ramp scenario's parser, got {show(scenario)}")
-    version = field_value(data, "version", "", SCENE_VERSION)
-    if not is_number(version) or version != SCENE_VERSION:
-        raise SceneError(f"version: this Galileo reads scene version {SCENE_VERSION}, got {show(version)}")
-    try:
+    try:   # before the version: another scenario's file that lost its "scenario" is named as such
         unknown_fields(data, SCENE_FIELDS, "")
     except SceneError as e:
         if "scenario" not in data:   # e.g. a splash scene that lost its "scenario"
             raise SceneError(f'{e} (a file without "scenario" is read as a ramp scene)') from None
         raise
+    version = field_value(data, "version", "", SCENE_VERSION)
+    if not is_number(version) or version != SCENE_VERSION:
+        raise SceneError(f"version: this Galileo reads scene version {SCENE_VERSION}, got {show(version)}")
     rd = field_value(data, "ramp", "")
     if not isinstance(rd, dict):
         raise SceneError(f"ramp: expected an object, got {show(rd)}")

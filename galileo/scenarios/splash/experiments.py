@@ -4,21 +4,24 @@ For every video: track it (the object's positions and velocities, its bottom-up 
 volume), run the chains (the seed's 50 x 75 by default), and record the truth, the
 bottom-up kind and volume, the MAP, the predicted mass and R-hat. Then:
 
-* **mass**: the predicted mass of a video is the median over chains of (the chain's final
-  density) x (the bottom-up volume), as the seed says ("final density results for the MCMC
-  chain were multiplied by the volume"); the MAP's mass is recorded beside it. Pearson r
+* **mass**: the predicted mass of a video (its one point estimate) is the posterior median of
+  density x volume over the kept draws of all chains, the volume being the bottom-up one
+  times the inferred volume factor (the seed: "final density results for the MCMC chain
+  were multiplied by the volume"; its median over chains of the final draws is recorded
+  too, `chain_median_mass_kg`); the MAP's mass (result.json's `mass_kg`, the best single
+  draw) is recorded beside it and not used. Pearson r
   (the seed's figure: r = 0.85 over 33 of 36 objects) and Spearman rho of predicted against
-  true mass over the videos that converged, and over objects (an object's prediction: the
-  median over its converged videos).
-* **converged** (`convergence`): the chains agree on the density: the interquartile range of
-  the chains' final densities is at most AGREE_IQR = 25% of their median, in a run of at least
-  2 chains of at least 8 sweeps (4 after burn-in). Not converged, with the reason recorded:
-  tracking or inference failed; too short a run; the chains disagree. Split R-hat of the
-  density (`InferenceResult.diagnostics`, second halves) is recorded per video and the count
-  below 1.1 reported, but it is not the rule: in runs this short (75 sweeps or fewer) of
-  narrow steps each chain barely moves in its second half, so R-hat is far above 1.1 even
-  where the chains agree (6.7 on a wooden block whose 16 chains end, after 40 sweeps, within
-  0.41-0.64 g/cm^3 around the true 0.62).
+  true mass over the videos whose chains agree (the seed's "converged"), and over objects (an
+  object's prediction: the median over those videos).
+* **converged**: one verdict, `galileo infer`'s (`InferenceResult.convergence`: rank-normalised
+  split R-hat <= 1.01 and bulk and tail ESS >= 400 for every latent), recorded per video as
+  `converged` with its reasons. The seed's selection is a weaker test, named for what it is:
+  **chains agree** (`chains_agree`): the interquartile range of the chains' final densities is
+  at most AGREE_IQR = 25% of their median, in a run of at least 2 chains of at least 8 sweeps
+  (4 after burn-in); where it fails, the reason is recorded (tracking or inference failed; too
+  short a run; the chains disagree). At the seed's 75 sweeps chains can agree long before
+  they converge (a wooden block whose 16 chains end within 0.41-0.64 g/cm^3 around the true
+  0.62, R-hat 6.7): the seed's correlation is over videos whose chains agree.
 * **which is heavier**: three bands of true mass ratio (heavier / lighter) around the seed's
   medians 22, 5.3 and 1.5 (edges at the geometric midpoints, `BANDS`); per band 30 pairs of
   videos of different objects, chosen from the dataset's truth alone: the candidate pairs
@@ -85,22 +88,31 @@ def read_truth(folder: Path) -> dict:
     need = ("kind", "volume_cm3", "density_g_cm3", "mass_kg", "material")
     if not isinstance(lat, dict) or any(k not in lat for k in need):
         raise GalileoError(f"{folder / 'truth.json'}: expected latents with {', '.join(need)}")
-    return {k: lat[k] for k in ("kind", "volume_cm3", "area_cm2", "density_g_cm3", "drag_water", "start_step",
-                                "mass_kg", "material") if k in lat}
+    return {k: lat[k] for k in ("kind", "volume_cm3", "area_cm2", "density_g_cm3", "drag_water", "release_s",
+                                "push_mps", "mass_kg", "material") if k in lat}
 
 
 def result_record(res) -> dict:
     """What a video's `InferenceResult` contributes to its record."""
     j = res.names.index("density_g_cm3")
-    volume_cm3 = float(res.scene.obj.volume_cm3)          # the bottom-up volume the chains ran with
     final_density = res.samples[:, -1, j].astype(float)
-    chain_mass_kg = final_density * volume_cm3 * CM3 * 1000.0
+    factor = (res.samples[:, -1, res.names.index("volume_factor")].astype(float) if "volume_factor" in res.names
+              else np.ones_like(final_density))
+    final_volume_cm3 = float(res.scene.obj.volume_cm3) * factor   # the bottom-up volume x the chain's factor
+    chain_mass_kg = final_density * final_volume_cm3 * CM3 * 1000.0
     diag = res.diagnostics()
+    derived = res.derived_posterior()
+    mass = derived["mass_kg"]
     return {"map": res.map, "map_mass_kg": float(res.derived()["mass_kg"]),
-            "mass_kg": float(np.median(chain_mass_kg)),
-            "mass_kg_quartiles": [float(q) for q in np.quantile(chain_mass_kg, [0.25, 0.75])],
+            "volume_cm3": float(derived["volume_cm3"]["q50"]),
+            "derived_posterior": {k: {q: derived[k][q] for q in ("q05", "q25", "q50", "q75", "q95")}
+                                  for k in ("mass_kg", "volume_cm3")},
+            "map_at_prior_edge": res.at_prior_edge(),
+            "mass_kg": float(mass["q50"]), "chain_median_mass_kg": float(np.median(chain_mass_kg)),
+            "mass_kg_quartiles": [float(mass["q25"]), float(mass["q75"])],
             "final_density_g_cm3": [float(x) for x in final_density],
-            "r_hat": diag["r_hat"], "ess_bulk": diag["ess"],
+            "r_hat": diag["r_hat"], "ess_bulk": diag["ess"], "converged": bool(diag["converged"]),
+            "why_not": list(diag["why_not"]),
             "posterior": {k: {q: v[q] for q in ("q05", "q25", "q50", "q75", "q95")} for k, v in res.posterior().items()},
             "chains": int(res.samples.shape[0]), "sweeps": int(res.samples.shape[1]),
             "seconds": float(res.timing_s["wall"])}
@@ -124,22 +136,23 @@ def run_video(folder: Path, config: RunConfig, executor=None) -> dict:
         return {**rec, "status": "failed", "error": f"tracking: {_one_line(e)}"}
     t1 = time.perf_counter()
     found = tracks.objects[0].bottom_up if tracks.objects else {}
-    rec["bottom_up"] = {"kind": found.get("kind"), "volume_cm3": found.get("volume_cm3")}
+    rec["bottom_up"] = {k: found.get(k) for k in ("kind", "volume_cm3", "volume_log_sd", "kind_probs", "release_s")}
     try:
         res = infer(scene, tracks, config, executor=executor, progress=False)
     except GalileoError as e:
         return {**rec, "status": "failed", "error": f"inference: {_one_line(e)}"}
     rec.update(result_record(res))
     rec["status"] = "fitted"
-    rec["converged"] = convergence(rec)[0]
+    rec["chains_agree"] = chains_agree(rec)[0]
     rec["timing"] = {"track_s": t1 - t0, "infer_s": time.perf_counter() - t1}
     return rec
 
 
 # -- the summary ---------------------------------------------------------------------------------------
 
-def convergence(rec: dict) -> tuple[bool, str]:
-    """(converged, why not): the chains' final densities agree (see module and AGREE_IQR)."""
+def chains_agree(rec: dict) -> tuple[bool, str]:
+    """(agree, why not): the chains' final densities agree (the seed's "converged"; see module
+    and AGREE_IQR)."""
     if "error" in rec:
         return False, rec["error"]
     if "mass_kg" not in rec:
@@ -230,7 +243,7 @@ def summarise(records: list[dict], heavier: dict | None = None) -> dict:
     """The report's summary of the video records (`heavier`: `which_is_heavier(records)`,
     computed when not given)."""
     predicted = [r for r in records if "mass_kg" in r]
-    verdicts = {r["video"]: convergence(r) for r in records}
+    verdicts = {r["video"]: chains_agree(r) for r in records}
     conv = [r for r in predicted if verdicts[r["video"]][0]]
     not_conv = [{"video": r["video"], "reason": verdicts[r["video"]][1]} for r in records if not verdicts[r["video"]][0]]
     objects: dict[str, list] = {}
@@ -241,10 +254,12 @@ def summarise(records: list[dict], heavier: dict | None = None) -> dict:
     rel = [abs(r["mass_kg"] / r["truth"]["mass_kg"] - 1) for r in conv]
     heavier = which_is_heavier(records) if heavier is None else heavier
     return {
-        "videos": len(records), "predicted": len(predicted), "converged": len(conv),
-        "convergence_rule": (f"(q75 - q25) / median of the chains' final densities <= {AGREE_IQR:g}, with >= "
+        "videos": len(records), "predicted": len(predicted), "chains_agree": len(conv),
+        "converged": sum(bool(r.get("converged")) for r in predicted),
+        "converged_rule": "galileo infer's: R-hat <= 1.01 and bulk and tail ESS >= 400 for every latent",
+        "agreement_rule": (f"(q75 - q25) / median of the chains' final densities <= {AGREE_IQR:g}, with >= "
                              f"{MIN_CHAINS} chains of >= {MIN_SWEEPS} sweeps"),
-        "not_converged": not_conv,
+        "chains_disagree": not_conv,
         "r_hat_below_1_1": sum(rhat_converged(r) for r in predicted),
         "mass_correlation": {
             "videos": correlation([r["truth"]["mass_kg"] for r in conv], [r["mass_kg"] for r in conv]),
@@ -257,8 +272,55 @@ def summarise(records: list[dict], heavier: dict | None = None) -> dict:
                         "objects": len({r["object"] for r in records if "object" in r})},
             "median_relative_error": float(np.median(rel)) if rel else None},
         "which_is_heavier": {b: {k: v for k, v in d.items() if k != "scored"} for b, d in heavier.items()},
+        **honesty(predicted, records),
         "seconds_per_video": float(np.mean([r["seconds"] for r in predicted])) if predicted else None,
         "failed": [{"video": r["video"], "error": r.get("error", "")} for r in records if r.get("status") == "failed"],
         "seed": SEED,
         "pairs": {b: d["scored"] for b, d in heavier.items()},
     }
+
+
+# -- what the numbers can be trusted for ---------------------------------------------------------------
+
+def inside(interval: dict | None, truth) -> bool | None:
+    """Whether a posterior summary's 90% interval (q05-q95) holds the truth (None: no interval)."""
+    if not isinstance(interval, dict) or truth is None or "q05" not in interval:
+        return None
+    return bool(interval["q05"] <= float(truth) <= interval["q95"])
+
+
+def honesty(predicted: list[dict], records: list[dict]) -> dict:
+    """The figures that say how far to trust a video's numbers: the 90% intervals' coverage of
+    the true mass and density (with Clopper-Pearson 95% intervals), the bottom-up volume's and
+    the posterior volume's errors, the shape kind's confusion (true kind -> bottom-up kind),
+    how many MAPs lie at each prior's edge."""
+    from ...calibrate import coverage_summary
+
+    mass_in = [inside(r.get("derived_posterior", {}).get("mass_kg"), r["truth"].get("mass_kg")) for r in predicted]
+    dens_in = [inside(r.get("posterior", {}).get("density_g_cm3"), r["truth"].get("density_g_cm3")) for r in predicted]
+    vol_err, vol_log, post_err = [], [], []
+    kinds: dict[str, dict[str, int]] = {}
+    for r in records:
+        bu, truth = r.get("bottom_up") or {}, r.get("truth") or {}
+        v, tv = bu.get("volume_cm3"), truth.get("volume_cm3")
+        if isinstance(v, (int, float)) and isinstance(tv, (int, float)) and v > 0 and tv > 0:
+            vol_err.append(abs(v / tv - 1))
+            vol_log.append(math.log(v / tv))
+        if isinstance(r.get("volume_cm3"), (int, float)) and isinstance(tv, (int, float)) and tv > 0:
+            post_err.append(abs(r["volume_cm3"] / tv - 1))
+        if truth.get("kind") and bu.get("kind"):
+            row = kinds.setdefault(truth["kind"], {})
+            row[bu["kind"]] = row.get(bu["kind"], 0) + 1
+    edges: dict[str, int] = {}
+    for r in predicted:
+        for k in r.get("map_at_prior_edge", []):
+            edges[k] = edges.get(k, 0) + 1
+    return {"coverage_90": {"mass_kg": coverage_summary([x for x in mass_in if x is not None]),
+                            "density_g_cm3": coverage_summary([x for x in dens_in if x is not None])},
+            "volume": {"n": len(vol_err), "bottom_up_median_error": float(np.median(vol_err)) if vol_err else None,
+                       "bottom_up_median_log_ratio": float(np.median(vol_log)) if vol_log else None,
+                       "posterior_median_error": float(np.median(post_err)) if post_err else None},
+            "kind_confusion": kinds, "kind_right": sum(row.get(k, 0) for k, row in kinds.items()),
+            "kind_n": sum(sum(row.values()) for row in kinds.values()),
+            "map_at_prior_edge": edges, "map_at_any_prior_edge": sum(bool(r.get("map_at_prior_edge"))
+                                                                    for r in predicted)}

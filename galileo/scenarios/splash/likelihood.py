@@ -1,12 +1,13 @@
 """Likelihood of the splash (the seed's eq. 2): tracked positions and velocities against Bullet.
 
-    log p(x_o, v_o | s, rho, D_w, t) = sum over frames f where the object was seen of
-        log N(x_o[f] | x_s(t + f spf), sigma_x^2 I) + log N(v_o[f] | v_s(t + f spf), sigma_v^2 I)
+    log p(x_o, v_o | s, rho, D_w, k, t_r, u) = sum over frames f where the object was seen of
+        log N(x_o[f] | x_s(f spf - r), sigma_x^2 I) + log N(v_o[f] | v_s(f spf - r), sigma_v^2 I)
 
 on the x and z components (the image plane of the side camera; depth is not observed).
-The simulation starts with the object at rest at the scene's release point; frame f of the
-video is physics step t + f * spf of the simulation (t: the observation start, a latent, in
-physics steps; spf = sim_hz / fps steps per frame).
+The simulation starts at the scene's release point moving down at the push u; frame f of
+the video is physics step f * spf - r of it (r = round(t_r sim_hz): the release t_r, a
+latent in seconds of video time; spf = sim_hz / fps steps per frame); frames before the
+release (a negative step) show the object held still at the release point.
 
 Units: the seed fixes Sigma = 1 without units. Here it is 1 in the video's own units: one
 pixel for positions and one pixel per frame for velocities (the tracker's resolution), so
@@ -14,7 +15,7 @@ sigma_x = sigma_px * m_per_px and sigma_v = sigma_px * m_per_px * fps, where m_p
 size of a pixel at the release point's depth (depth / focal length). `sigma_px` = 1.
 
 The likelihood stands on `galileo.framelik.FrameLikelihood`, with a tick of one physics step
-(t, in physics steps, shifts which steps the frames show). Its rest rule (as the ramp's) is
+(the release shifts which steps the frames show; frames before it are its `before_start`). Its rest rule (as the ramp's) is
 checked on the simulation's own frames (every spf steps from the release, whatever t): once,
 for two consecutive such frames, the object moves slower than REST_MPS, turns slower than
 REST_RADPS and is not speeding up, later steps hold its last position at zero velocity. A
@@ -27,12 +28,12 @@ path, which simulates every frame of every proposal from the release):
 * early rejection: every frame adds a term <= 0; the run stops once the partial sum falls
   below the MH threshold.
 * at-rest cut-off: after the rest rule holds, the remaining frames are known without stepping.
-* reuse of what does not change with a latent: the simulation does not depend on t, only the
-  alignment does. A run that completes goes on to the horizon (the start's prior upper
-  bound in the scene file + the video's length; a start beyond it, under bounds widened
-  at run time, simulates afresh unless the run came to rest) and its every step is kept
-  (keyed on s, rho, D_w); a proposal of t is then scored from the kept steps without
-  simulating (frame by frame, stopping at the threshold).
+* reuse of what does not change with a latent: the simulation does not depend on the
+  release time, only the alignment does. A run that completes goes on to the horizon (the
+  earliest release the scene's prior allows + the video's length; a release before it, under
+  bounds widened at run time, simulates afresh unless the run came to rest) and its every
+  step is kept (keyed on the other latents); a proposal of the release time is then scored
+  from the kept steps without simulating (frame by frame, stopping at the threshold).
 """
 from __future__ import annotations
 
@@ -43,7 +44,7 @@ import numpy as np
 from ...datatypes import Tracks
 from ...errors import GalileoError
 from ...framelik import KEPT_MOTIONS, FrameLikelihood, RestRule, Run
-from .physics import FrameStepper, Simulator
+from .physics import FrameStepper, Simulator, between
 from .scene import LATENT_NAMES, SplashScene
 
 SIGMA_PX = 1.0
@@ -73,21 +74,26 @@ def check_sigma(sigma) -> float:
         raise GalileoError(f"likelihood: {e}") from None
 
 
+_ZERO = (0.0, 0.0, 0.0)
+
+
 class _Run(Run):
     """One run from the release, a physics step a tick; its state: the object's twist, position
-    and orientation."""
+    and orientation, and the raw state of the tick before (None at tick 0), for the frames
+    that fall between two ticks (`SplashLikelihood.at_frame`)."""
 
     def __init__(self, lik: SplashLikelihood, stepper: FrameStepper):
         self.lik, self.stepper = lik, stepper
         self.state = None   # (position, orientation, linear, angular velocity) now
 
     def tick(self, k: int) -> tuple:
-        if self.state is None:
+        before = self.state
+        if before is None:
             self.state = self.stepper.state()
         else:
             self._step()
         p, q, lin, ang = self.state
-        return ((lin, ang),), p, q
+        return ((lin, ang),), p, q, before
 
     def _step(self) -> None:
         self.state = self.stepper.step(self.state)
@@ -102,7 +108,7 @@ class _Run(Run):
 
 
 class SplashLikelihood(FrameLikelihood):
-    """Callable log-likelihood over (area_cm2, density_g_cm3, drag_water, start_step)."""
+    """Callable log-likelihood over the splash's latents (scene.LATENT_NAMES)."""
     no_motion = "no object of this volume shows that area from below and fits the tank"
 
     def __init__(self, scene: SplashScene, tracks: Tracks, sigma_px: float = SIGMA_PX, speedups: bool = True,
@@ -116,9 +122,9 @@ class SplashLikelihood(FrameLikelihood):
             raise GalileoError(f"tracks at {tracks.fps:g} fps but the scene camera at {scene.fps:g} fps")
         self.scene = scene
         self.spf = int(round(scene.sim_hz / tracks.fps))
-        # the simulation does not depend on the start step: its runs are kept for start proposals
+        # the simulation does not depend on the release time: its runs are kept for its proposals
         super().__init__(LATENT_NAMES, tracks.fps, tracks.n_frames, [scene.obj.name], speedups=speedups,
-                         sim_latents=[n for n in LATENT_NAMES if n != "start_step"],
+                         sim_latents=[n for n in LATENT_NAMES if n != "release_s"],
                          rest=RestRule(every=self.spf), motions=cache_size)
         mpp = metres_per_pixel(scene)
         self.sigma_x_m = self.sigma_px * mpp
@@ -133,18 +139,47 @@ class SplashLikelihood(FrameLikelihood):
         self.log_norm = -2 * n * math.log(self.sigma_x_m * math.sqrt(2 * math.pi)) \
             - 2 * n * math.log(self.sigma_v_mps * math.sqrt(2 * math.pi))
         self.sim = Simulator(scene)
-        self.horizon_start = int(scene.bounds["start_step"][1])
+        self.horizon_start = max(0, scene.frame_ticks(scene.bounds["release_s"][0])[0])
+        pose = (tuple(float(x) for x in scene.release_m), scene.release_orientation())
+        # before the release: held still at the release point, as placed (one body's twist)
+        self._held = ((((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)),),) + pose + ((pose[0], pose[1], _ZERO, _ZERO),)
 
     def start(self, values: dict) -> _Run | None:
         stepper = self.sim.frames(values)
         return None if stepper is None else _Run(self, stepper)   # None: no object of this volume fits
 
     def alignment(self, values: dict) -> tuple[int, int]:
-        """Frame f is physics step t + f spf."""
-        return int(round(values["start_step"])), self.spf
+        """Frame f is seen at tick k + f spf of the run (`scene.frame_ticks`: it falls a
+        fraction a of a step before it, `at_frame` interpolates)."""
+        return self.scene.frame_ticks(values["release_s"])[0], self.spf
+
+    def before_start(self, values: dict) -> tuple:
+        """Frames before the release: the object held still at the release point, as placed."""
+        return self._held, [self._held[1:3]]
+
+    def held(self, state) -> tuple:
+        """At rest: zero twist, the pose of that tick (the tick before it too)."""
+        p, q = state[1], state[2]
+        return (((_ZERO, _ZERO),), p, q, (p, q, _ZERO, _ZERO))
+
+    def at_frame(self, state, values: dict) -> tuple:
+        """The frame's state: a fraction a of a step before the tick's (`scene.frame_ticks`),
+        linear between the two ticks around it (`physics.between`); before the release (tick 0
+        with a > 0), held still."""
+        a = self.scene.frame_ticks(values["release_s"])[1]
+        if a == 0.0:
+            return state
+        if state[3] is None:
+            return self._held
+        (lin, ang), = state[0]
+        p, q, lin, ang = between(a, (state[1], state[2], lin, ang), state[3])
+        return ((lin, ang),), p, q, state[3]
+
+    def frame_poses(self, seen, run) -> list:
+        return [(seen[1], seen[2])]
 
     def horizon(self, values: dict) -> int:
-        return self.horizon_start + (self.n_frames - 1) * self.spf
+        return max(0, self.horizon_start + (self.n_frames - 1) * self.spf)
 
     def observe(self, f: int, state, noise) -> float:
         o = self._by_frame.get(f)

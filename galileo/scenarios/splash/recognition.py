@@ -30,7 +30,7 @@ ROLE = "object"          # the role splash tracking gives the dropped object
 
 def density_per_kg(scene) -> float:
     """The density latent (g/cm^3) per kilogram of the scene's object (of its volume)."""
-    return 1.0 / (1000.0 * scene.obj.volume_m3)
+    return 1.0 / (1000.0 * scene.volume_m3)
 
 
 def readouts(scene) -> tuple[Readout, ...]:
@@ -39,7 +39,8 @@ def readouts(scene) -> tuple[Readout, ...]:
 
 def label(scene, tracks, values: dict) -> dict:
     d = values.get("density_g_cm3")
-    mass = None if d is None else float(d) * 1000.0 * scene.obj.volume_m3
+    factor = values.get("volume_factor", scene.volume_factor)   # the inferred volume's
+    mass = None if d is None else float(d) * 1000.0 * scene.obj.volume_m3 * float(factor)
     return {ROLE: {"mass_kg": mass, "friction": None}}
 
 

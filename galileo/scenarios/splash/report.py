@@ -12,7 +12,7 @@ import numpy as np
 
 from ...report import (NA, Section, diagonal, finite, fmt, get, interval_points, md_table, new_figure, no_data,
                        plain_log_axes, save_figure)
-from .experiments import SEED, convergence, summarise, which_is_heavier
+from .experiments import SEED, chains_agree, summarise, which_is_heavier
 
 CHANCE = 0.5
 PAPER = {
@@ -36,9 +36,9 @@ def _mass_section(records: list[dict], summary: dict, fig_dir: Path) -> Section:
     if not pred:
         return Section(title, PAPER["mass"], None, "No data: no video has a predicted mass.", mc)
     fig, ax = new_figure()
-    for conv, style, label in ((True, dict(fmt="o"), "converged"),
-                               (False, dict(fmt="o", mfc="none"), "not converged")):
-        rs = [r for r in pred if convergence(r)[0] == conv]
+    for conv, style, label in ((True, dict(fmt="o"), "chains agree"),
+                               (False, dict(fmt="o", mfc="none"), "chains disagree")):
+        rs = [r for r in pred if chains_agree(r)[0] == conv]
         if not rs:
             continue
         t = np.array([r["truth"]["mass_kg"] for r in rs])
@@ -52,20 +52,22 @@ def _mass_section(records: list[dict], summary: dict, fig_dir: Path) -> Section:
     png = save_figure(fig, fig_dir / "splash_mass.png")
     obj = mc["objects"]
     seed = f"{SEED['pearson_r']} ({SEED['converged_objects']} of {SEED['objects']} objects)"
-    rows = [[f"objects, converged ({obj['converged_objects']} of {obj['objects']})", obj["n"], obj["pearson_r"],
-             obj["spearman_rho"], seed],
-            ["videos, converged", mc["videos"]["n"], mc["videos"]["pearson_r"], mc["videos"]["spearman_rho"], NA],
-            ["videos, converged, MAP mass", mc["videos_map_mass"]["n"], mc["videos_map_mass"]["pearson_r"],
+    rows = [[f"objects whose chains agree ({obj['converged_objects']} of {obj['objects']})", obj["n"],
+             obj["pearson_r"], obj["spearman_rho"], seed],
+            ["videos whose chains agree", mc["videos"]["n"], mc["videos"]["pearson_r"], mc["videos"]["spearman_rho"],
+             NA],
+            ["videos whose chains agree, MAP mass", mc["videos_map_mass"]["n"], mc["videos_map_mass"]["pearson_r"],
              mc["videos_map_mass"]["spearman_rho"], NA],
             ["videos, all predicted", mc["all_predicted"]["n"], mc["all_predicted"]["pearson_r"],
              mc["all_predicted"]["spearman_rho"], NA]]
     body = "\n\n".join([
         md_table(["over", "n", "Pearson r", "Spearman rho", "seed's Pearson r"], rows),
-        f"Median relative error of the converged videos' mass: {fmt(mc['median_relative_error'])}. "
-        f"Converged: {summary['converged']} of {summary['predicted']} predicted videos "
-        f"({summary['convergence_rule']}).",
-        "A predicted mass is the median over chains of final density x bottom-up volume; bars span the chains' "
-        "interquartile range. On the dashed diagonal the prediction is exact; hollow points are videos whose "
+        f"Median relative error of the mass over videos whose chains agree: {fmt(mc['median_relative_error'])}. "
+        f"Chains agree (the seed's \"converged\"): {summary['chains_agree']} of {summary['predicted']} predicted "
+        f"videos ({summary['agreement_rule']}). Converged ({summary['converged_rule']}): {summary['converged']} of "
+        f"{summary['predicted']}.",
+        "A predicted mass is the posterior median of density x volume (the bottom-up volume times the inferred "
+        "volume factor) over all chains' kept draws; bars span its interquartile range. On the dashed diagonal the prediction is exact; hollow points are videos whose "
         "chains disagree, left out of the seed's correlation."])
     return Section(title, PAPER["mass"], png, body, mc)
 
@@ -111,4 +113,39 @@ def sections(records: list[dict], fig_dir: Path) -> list[Section]:
                 no_data("Which is heavier, per band of mass ratio", PAPER["heavier"], "no record with a true mass")]
     heavier = which_is_heavier(scored)
     summary = summarise(scored, heavier)
-    return [_mass_section(scored, summary, fig_dir), _heavier_section(heavier, fig_dir)]
+    return [_mass_section(scored, summary, fig_dir), _heavier_section(heavier, fig_dir), _honesty_section(summary)]
+
+
+def _cover(c: dict) -> str:
+    if not c or c.get("coverage") is None:
+        return NA
+    lo, hi = c["ci95"]
+    return f"{c['coverage']:.0%} ({c['covered']}/{c['n']}; 95% CI {lo:.0%}-{hi:.0%})"
+
+
+def _honesty_section(summary: dict) -> Section:
+    """How far a video's numbers can be trusted: coverage, the volume's error, the kind's confusion."""
+    title = "Intervals, volume and shape: how far to trust a video's numbers"
+    cov, vol = summary["coverage_90"], summary["volume"]
+    rows = [["90% interval holds the true mass", _cover(cov["mass_kg"]), "85-95%"],
+            ["90% interval holds the true density", _cover(cov["density_g_cm3"]), "85-95%"],
+            ["bottom-up volume, median error", fmt(vol["bottom_up_median_error"]), "<= 15%"],
+            ["bottom-up volume, median log(estimate / true)", fmt(vol["bottom_up_median_log_ratio"]), "0"],
+            ["posterior volume (median), median error", fmt(vol["posterior_median_error"]), NA],
+            ["shape kind right", f"{summary['kind_right']}/{summary['kind_n']}", NA],
+            ["MAPs at a prior's edge (any latent)", f"{summary['map_at_any_prior_edge']}/{summary['predicted']}",
+             "< 10%"]]
+    kinds = sorted({k for row in summary["kind_confusion"].values() for k in row} | set(summary["kind_confusion"]))
+    confusion = [[t] + [summary["kind_confusion"].get(t, {}).get(k, 0) for k in kinds]
+                 for t in kinds if t in summary["kind_confusion"]]
+    edges = ", ".join(f"{k}: {n}" for k, n in sorted(summary["map_at_prior_edge"].items())) or "none"
+    body = "\n\n".join([
+        md_table(["figure", "value", "target"], rows),
+        "Shape kind, true (rows) against bottom-up (columns):\n\n"
+        + (md_table(["true \\ bottom-up"] + kinds, confusion) if confusion else "no data"),
+        f"MAPs at a prior's edge, per latent: {edges}. A MAP at an edge means the data pull past the prior: the "
+        "latent is bending to absorb something (a prior too narrow, or what the model leaves out)."])
+    numbers = {k: summary[k] for k in ("coverage_90", "volume", "kind_confusion", "kind_right", "kind_n",
+                                       "map_at_prior_edge", "map_at_any_prior_edge")}
+    return Section(title, "The seed reports no intervals, volumes or kinds; the targets are this project's.", None,
+                   body, numbers)

@@ -23,15 +23,27 @@ MCMC rejects such a proposal without simulating (the prior is U(0.1, 20) cm^2 tr
 objects that fit in the tank). `equal_area(kind, h)` is the s at which the dimensions are
 equal (a = H; D = H; D = L), where the seed starts its chains.
 
-Latents (MCMC): surface area `area_cm2` ~ U(0.1, 20) cm^2, density `density_g_cm3` ~
-U(0.001, 2) g/cm^3, water drag `drag_water` ~ U(0.001, 2) (air drag = 1e-3 x water drag),
-observation start `start_step` ~ U{5, ..., 30}: frame 0 of the video is physics step
-`start_step` of the simulation (at sim_hz, 240 Hz: 0.02-0.125 s after the release), which
-starts with the object at rest at `release_m`; frame f is step start_step + f * sim_hz / fps.
-The seed's "observation start frame ... the time step at which we start matching" is read in
-physics steps: counted in video frames (0.17-1 s) it would start most videos with the
-object already under water or at rest.
-The volume is fixed from the bottom-up estimate; mass = density x volume.
+Latents (MCMC): bottom area `area_cm2`, density `density_g_cm3` ~ U(0.001, 2) g/cm^3, water
+drag `drag_water` ~ U(0.001, 2) (air drag = 1e-3 x water drag), and three the seed has not:
+
+* the release, in video time: `release_s`, the moment (s; frame f is at f / fps) the object
+  is let go at `release_m`, and `push_mps`, the downward speed it is given then. Before
+  `release_s` the object is held still at `release_m` (a hand holds it: 0 s to a second in
+  real drops); from then on it falls from `release_m` at push_mps downwards. A release
+  before frame 0 (release_s < 0) is the seed's "observation start t" (here -t / sim_hz):
+  the video opens with the object already falling. A model that can only start at rest a
+  few steps before frame 0 explains a held or pushed start with a weightless, draggy object.
+* `volume_factor`: the object's volume over the bottom-up estimate `object.volume_cm3` (the
+  camera sees width and height, never depth: the volume is uncertain, and with it the mass;
+  the motion identifies the density and, weakly, the volume through drag and added mass).
+  mass = density x volume_factor x volume_cm3.
+
+Priors left at their defaults are set from the video when tracks are prepared (the
+scenario's `prepare`): the area prior U(A/4, 4 A), A the area at which an object of the
+bottom-up volume has equal sides (the seed's U(0.1, 20) cm^2 fits neither a 100 cm^3 object,
+A = 21.5 cm^2, nor a 0.01 cm^3 bead, A = 0.046 cm^2; a factor of 4 either way spans sides in
+the ratios 1:8 to 8:1); the volume factor's from the tracker's uncertainty (exp(+-2 sd)); the
+release's a window around the release the tracker saw. Bounds set by hand are kept.
 """
 from __future__ import annotations
 
@@ -48,7 +60,8 @@ from ...latents import Latent, check_bounds
 from ...scenefile import SceneFile
 from ...shapes import Box, Cylinder, Shape
 
-SCENE_VERSION = 1
+SCENE_VERSION = 2   # 2: the release in video time (release_s, push_mps), the volume factor; version 1
+# files (start_step: frame 0 at that physics step after a release at rest) are read too
 KINDS = ("box", "vcyl", "hcyl")   # square-bottomed box, vertical cylinder, horizontal cylinder
 MIN_DIM_M = 0.002                 # no dimension below 2 mm
 WATER_DENSITY_KG_M3 = 1000.0
@@ -71,8 +84,13 @@ DENSITY_G_CM3 = Bound(0.001, 25.0)          # at least 0.001 g/cm^3 (1 kg/m^3, a
 DRAG_WATER = Bound(0.0, 100.0)              # a drag coefficient: 0 (none: a free fall), about 1 for a blunt body
 # and 2 for a plate broadside; at most 100 (50 plates), far beyond any body yet finite. The latent's prior
 # bounds must lie in (0, 100]: above 0, as the paper's prior U(0.001, 2)
-START_STEP = Bound(0, 1000, integer=True)   # the physics step shown as frame 0: whole steps (never rounded), at
-# most 1000 (4 s at 240 Hz: the object has long settled)
+RELEASE_S = Bound(-4.0, 60.0)               # the release's video time: at most 4 s before frame 0 (the object has
+# long settled by then), at most a minute into the video (MAX_STEPS bounds the run itself)
+PUSH_MPS = Bound(0.0, 5.0)                  # the downward speed at release: 0 (let go) to 5 m/s (a throw: beyond
+# it the object hits the water faster than any splash this model has)
+YAW_DEG = Bound(-180.0, 180.0)              # the object's turn about the vertical, degrees
+VOLUME_FACTOR = Bound(0.0, 100.0, lo_open=True)   # the true volume over the bottom-up one: above 0, at most 100
+# (the estimate's volume is itself checked against VOLUME_CM3)
 TANK_SIZE_M = Bound(0.02, 3.0)              # the tank's inner sizes: 2 cm (room for a 2 mm object) to 3 m (a
 # tank on a lab floor)
 WALL_M = Bound(0.0, 0.1, lo_open=True)      # glass walls: above 0 (Bullet needs a body), at most 10 cm
@@ -84,8 +102,8 @@ SIM_HZ = Bound(60, 10_000)                  # Bullet steps per second: at least 
 # once a step: slower, a falling object crosses the surface in one), at most 10 kHz (40x the cost of 240)
 GRAVITY_MPS2 = Bound(0.0, 100.0, lo_open=True)   # downwards, above 0 (without gravity nothing falls: the object
 # hangs at its release point and the video holds no evidence), at most 100 m/s^2 (10 g; beyond any lab)
-MAX_STEPS = 2_000_000                       # physics steps of one simulated video (start_step + frames x sim_hz /
-# fps) at most: about a minute of Bullet; inference repeats it thousands of times
+MAX_STEPS = 2_000_000                       # physics steps of one simulated video (from a release before frame 0
+# + frames x sim_hz / fps) at most: about a minute of Bullet; inference repeats it thousands of times
 
 LATENT_SPECS = {
     "area_cm2": Latent("area_cm2", "cm^2", (0.1, 20.0), "area the object shows the water from below (drag, shape)",
@@ -95,12 +113,18 @@ LATENT_SPECS = {
                             narrow=0.05, broad=0.5),
     "drag_water": Latent("drag_water", "1", (0.001, 2.0), "drag coefficient in water (in air: 1e-3 x this)",
                          limits=(DRAG_WATER.lo, DRAG_WATER.hi), limits_open_low=True, narrow=0.05, broad=0.5),
-    "start_step": Latent("start_step", "step", (5.0, 30.0), "physics step shown as the video's frame 0",
-                          limits=(START_STEP.lo, START_STEP.hi), narrow=1.0, broad=1.0, integer=True),
+    "release_s": Latent("release_s", "s", (-0.25, 1.0), "video time the object is let go (held still before)",
+                        limits=(RELEASE_S.lo, RELEASE_S.hi), narrow=0.005, broad=0.05),
+    "push_mps": Latent("push_mps", "m/s", (0.0, 0.5), "downward speed the object is let go at",
+                       limits=(PUSH_MPS.lo, PUSH_MPS.hi), narrow=0.02, broad=0.1),
+    "volume_factor": Latent("volume_factor", "1", (0.6, 1.65), "volume over the bottom-up estimate",
+                            limits=(VOLUME_FACTOR.lo, VOLUME_FACTOR.hi), limits_open_low=True, narrow=0.02,
+                            broad=0.2),
 }
 # each value `with_values` takes, with its bound
 VALUE_BOUNDS = {"area_cm2": AREA_CM2, "density_g_cm3": DENSITY_G_CM3, "drag_water": DRAG_WATER,
-                "start_step": START_STEP, "volume_cm3": VOLUME_CM3}
+                "release_s": RELEASE_S, "push_mps": PUSH_MPS, "volume_factor": VOLUME_FACTOR,
+                "volume_cm3": VOLUME_CM3}
 LATENT_NAMES = tuple(LATENT_SPECS)
 
 
@@ -197,12 +221,24 @@ class SplashScene(SceneFile):
     scenario: ClassVar[str] = "splash"
     tank: Tank
     obj: SplashObject
-    release_m: tuple[float, float, float]     # the object's centre when it is let go (at rest)
-    start_step: int = 10                       # physics step shown as the video's frame 0
+    release_m: tuple[float, float, float]     # the object's centre when it is let go
+    release_s: float = -10 / 240               # video time of the release (s): held still at release_m before
     camera: Camera | None = None
     sim_hz: float = 240   # asked; with a camera, the multiple of its fps nearest it (camera.physics_hz)
     gravity_mps2: float = 9.81
     bounds: dict = field(default_factory=lambda: dict(DEFAULT_BOUNDS))
+    push_mps: float = 0.0                      # downward speed at the release
+    volume_factor: float = 1.0                 # the true volume over object.volume_cm3
+    yaw_deg: float = 0.0                       # the object's turn about the vertical as let go (not inferred: it
+    # changes what the camera sees of it, not how it falls)
+
+    def release_orientation(self) -> tuple[float, float, float, float]:
+        """The object's orientation (x, y, z, w) as let go: as `body_shape` drops its kind, turned
+        by yaw_deg about the vertical."""
+        x, y, z, w = body_shape(self.obj.kind, (1.0, 1.0, 1.0))[1]
+        half = math.radians(self.yaw_deg) / 2
+        sz, cz = math.sin(half), math.cos(half)    # (0, 0, sz, cz) x (x, y, z, w), Hamilton's product
+        return (cz * x - sz * y, cz * y + sz * x, cz * z + sz * w, cz * w - sz * z)
 
     # -- latents ------------------------------------------------------------------------------
     def latent_specs(self) -> tuple[Latent, ...]:
@@ -211,30 +247,53 @@ class SplashScene(SceneFile):
     def latents(self) -> dict[str, float]:
         o = self.obj
         return {"area_cm2": o.area_cm2, "density_g_cm3": o.density_g_cm3, "drag_water": o.drag_water,
-                "start_step": float(self.start_step)}
+                "release_s": float(self.release_s), "push_mps": float(self.push_mps),
+                "volume_factor": float(self.volume_factor)}
+
+    def release_step(self, release_s: float | None = None) -> int:
+        """The release in physics steps of video time (frame f is step f * sim_hz / fps),
+        rounded to the nearer step (for step counts; the timing itself is `frame_ticks`)."""
+        return int(round((self.release_s if release_s is None else release_s) * self.sim_hz))
+
+    def frame_ticks(self, release_s: float | None = None) -> tuple[int, float]:
+        """(k, a): video frame 0 falls at physics step k - a of the run from the release (k a
+        whole step, 0 <= a < 1), frame f at step k - a + f * sim_hz / fps. The run steps on
+        its own grid from the release, so that a release between two steps of video time
+        is no coarser than the time itself: a frame's state is interpolated between the two
+        steps around it (the likelihood's and `Simulator.run`'s)."""
+        x = -(self.release_s if release_s is None else release_s) * self.sim_hz
+        k = math.ceil(x - 1e-9)
+        a = k - x
+        return int(k), (a if a > 1e-9 else 0.0)
+
+    @property
+    def volume_m3(self) -> float:
+        """The object's volume (m^3): the bottom-up volume times the volume factor."""
+        return self.obj.volume_m3 * self.volume_factor
 
     def with_values(self, values: dict[str, float]) -> "SplashScene":
-        """A copy with latents (area_cm2, density_g_cm3, drag_water, start_step) and the volume
-        set; each value checked against its bound (a start step of 5.5 is refused, not
-        rounded), then the new scene validated as a whole."""
-        obj, start = self.obj, self.start_step
+        """A copy with latents (area_cm2, density_g_cm3, drag_water, release_s, push_mps,
+        volume_factor) and the bottom-up volume set; each value checked against its bound, then
+        the new scene validated as a whole."""
+        obj, own = self.obj, {}
         for name, value in values.items():
             if name not in VALUE_BOUNDS:
                 raise SceneError(f"unknown name {show(name)}; expected one of {', '.join(LATENT_NAMES)}, volume_cm3")
             v = VALUE_BOUNDS[name].check(value, name)
-            if name == "start_step":
-                start = v
+            if name in ("release_s", "push_mps", "volume_factor"):
+                own[name] = v
             else:
                 obj = replace(obj, **{name: v})
-        new = replace(self, obj=obj, start_step=start)
+        new = replace(self, obj=obj, **own)
         new.validate()
         return new
 
     def check_simulation(self, n_frames: int, fps: float, names: tuple[str, str] = ("fps", "n_frames")) -> None:
-        """SceneError unless `n_frames` frames at `fps` can be simulated in this scene (after its
-        start_step steps): fps in [1, 1000], n_frames in [1, 100000], sim_hz a multiple of fps,
-        at most MAX_STEPS physics steps (`names`: what to call fps and n_frames in a message)."""
-        check_run(self.sim_hz, fps, n_frames, MAX_STEPS, self.start_step, names=names)
+        """SceneError unless `n_frames` frames at `fps` can be simulated in this scene (from a
+        release before frame 0, its steps too): fps in [1, 1000], n_frames in [1, 100000], sim_hz a
+        multiple of fps, at most MAX_STEPS physics steps (`names`: what to call fps and n_frames
+        in a message)."""
+        check_run(self.sim_hz, fps, n_frames, MAX_STEPS, max(0, -self.release_step()), names=names)
 
     # -- geometry -------------------------------------------------------------------------------
     @property
@@ -246,7 +305,8 @@ class SplashScene(SceneFile):
 
     def dims(self, area_cm2: float | None = None) -> tuple | None:
         o = self.obj
-        return dimensions(o.kind, o.volume_m3, (o.area_cm2 if area_cm2 is None else area_cm2) * CM2, self.max_dim_m())
+        return dimensions(o.kind, self.volume_m3, (o.area_cm2 if area_cm2 is None else area_cm2) * CM2,
+                          self.max_dim_m())
 
     def geometry_key(self) -> tuple:
         return (self.tank, self.sim_hz, self.gravity_mps2)
@@ -281,7 +341,7 @@ class SplashScene(SceneFile):
         DENSITY_G_CM3.check(o.density_g_cm3, "object.density_g_cm3")
         DRAG_WATER.check(o.drag_water, "object.drag_water")
         if self.dims() is None:
-            raise SceneError(f"object: no {o.kind} of {o.volume_cm3:g} cm^3 shows {o.area_cm2:g} cm^2 from below and "
+            raise SceneError(f"object: no {o.kind} of {self.volume_m3 / CM3:g} cm^3 shows {o.area_cm2:g} cm^2 from below and "
                              f"fits the tank (each side between {MIN_DIM_M * 1000:g} mm and "
                              f"{self.max_dim_m() * 100:.1f} cm)")
         rel = self.release_m
@@ -296,7 +356,11 @@ class SplashScene(SceneFile):
         if z > t.water_level_m + MAX_DROP_M:
             raise SceneError(f"release_m: z = {z:g} m is more than {MAX_DROP_M:g} m above the water "
                              f"(at {t.water_level_m:g} m)")
-        START_STEP.check(self.start_step, "start_step")
+        RELEASE_S.check(self.release_s, "release_s")
+        PUSH_MPS.check(self.push_mps, "push_mps")
+        VOLUME_FACTOR.check(self.volume_factor, "volume_factor")
+        YAW_DEG.check(self.yaw_deg, "yaw_deg")
+        VOLUME_CM3.check(self.obj.volume_cm3 * self.volume_factor, "object.volume_cm3 x volume_factor")
         SIM_HZ.check(self.sim_hz, "sim_hz")
         GRAVITY_MPS2.check(self.gravity_mps2, "gravity_mps2")
         check_priors(self.bounds)
@@ -305,12 +369,13 @@ class SplashScene(SceneFile):
                 raise SceneError(f"camera: expected a camera, got {show(self.camera)}")
             check_camera(self.camera)
             object.__setattr__(self, "sim_hz", physics_hz(self.sim_hz, self.camera.fps, SIM_HZ))  # whole steps a frame
-            check_run(self.sim_hz, self.camera.fps, self.camera.n_frames, MAX_STEPS, self.start_step)
+            check_run(self.sim_hz, self.camera.fps, self.camera.n_frames, MAX_STEPS, max(0, -self.release_step()))
 
     def to_json(self) -> dict:
         d: dict[str, Any] = {"scenario": self.scenario, "version": SCENE_VERSION, "tank": self.tank.to_json(),
                              "object": self.obj.to_json(), "release_m": list(self.release_m),
-                             "start_step": self.start_step, "sim_hz": self.sim_hz,
+                             "release_s": self.release_s, "push_mps": self.push_mps,
+                             "volume_factor": self.volume_factor, "yaw_deg": self.yaw_deg, "sim_hz": self.sim_hz,
                              "gravity_mps2": self.gravity_mps2,
                              "priors": {k: list(v) for k, v in self.bounds.items()}}
         if self.camera is not None:
@@ -319,15 +384,18 @@ class SplashScene(SceneFile):
 
 
 
-SCENE_FIELDS = ("scenario", "version", "tank", "object", "release_m", "start_step", "sim_hz", "gravity_mps2",
-                "priors", "camera")
+SCENE_FIELDS = ("scenario", "version", "tank", "object", "release_m", "release_s", "push_mps", "volume_factor",
+                "yaw_deg", "sim_hz", "gravity_mps2", "priors", "camera")
+V1_FIELDS = ("scenario", "version", "tank", "object", "release_m", "start_step", "sim_hz", "gravity_mps2",
+             "priors", "camera")
+V1_START = Bound(0, 1000, integer=True)   # version 1's start_step: the physics step shown as frame 0
 TANK_FIELDS = ("size_m", "wall_m", "water_level_m", "water_density_kg_m3")
 OBJECT_FIELDS = ("name", "kind", "volume_cm3", "area_cm2", "density_g_cm3", "drag_water", "material")
 
 
 def check_priors(bounds: Any, path: str = "priors") -> None:
     """SceneError naming the latent unless `bounds` holds proper bounds for each latent (both
-    numbers, low below high, inside its limits; whole numbers for start_step)."""
+    numbers, low below high, inside its limits)."""
     if not isinstance(bounds, dict):
         raise SceneError(f"{path}: expected bounds by latent name, got {show(bounds)}")
     for name in bounds:
@@ -362,9 +430,9 @@ def scene_from_json(data: Any) -> SplashScene:
     if scenario != "splash":
         raise SceneError(f"scenario: this is the splash scenario's parser, got {show(scenario)}")
     version = field_value(data, "version", "", SCENE_VERSION)
-    if not is_number(version) or version != SCENE_VERSION:
-        raise SceneError(f"version: this Galileo reads splash scene version {SCENE_VERSION}, got {show(version)}")
-    unknown_fields(data, SCENE_FIELDS, "")
+    if not is_number(version) or version not in (1, SCENE_VERSION):
+        raise SceneError(f"version: this Galileo reads splash scene versions 1 and {SCENE_VERSION}, got {show(version)}")
+    unknown_fields(data, V1_FIELDS if version == 1 else SCENE_FIELDS, "")
     td = field_value(data, "tank", "")
     if not isinstance(td, dict):
         raise SceneError(f"tank: expected an object, got {show(td)}")
@@ -394,6 +462,13 @@ def scene_from_json(data: Any) -> SplashScene:
     pd = field_value(data, "priors", "", {})
     if not isinstance(pd, dict):
         raise SceneError(f"priors: expected an object, got {show(pd)}")
+    pd = dict(pd)
+    if version == 1:   # its start_step prior (physics steps before frame 0) is a release before frame 0
+        if "start_step" in pd:
+            lo, hi = pair(pd, "start_step", "priors", None, integer=True)
+            hz = number(data, "sim_hz", "", 240, bound=SIM_HZ)
+            pd["release_s"] = [-hi / hz, -lo / hz]
+            del pd["start_step"]
     unknown_fields(pd, LATENT_NAMES, "priors")
     bounds = {}
     for k, lat in LATENT_SPECS.items():
@@ -401,11 +476,18 @@ def scene_from_json(data: Any) -> SplashScene:
     check_priors(bounds)
     bounds = {k: (float(lo), float(hi)) for k, (lo, hi) in bounds.items()}
     cam = field_value(data, "camera", "", None)
-    scene = SplashScene(tank, obj, _vector3(data, "release_m", ""),
-                        number(data, "start_step", "", 10, bound=START_STEP),
-                        camera_from_json(cam) if cam is not None else None,
-                        number(data, "sim_hz", "", 240, bound=SIM_HZ),
-                        number(data, "gravity_mps2", "", 9.81, bound=GRAVITY_MPS2), bounds)
+    sim_hz = number(data, "sim_hz", "", 240, bound=SIM_HZ)
+    if version == 1:
+        release_s = -number(data, "start_step", "", 10, bound=V1_START) / sim_hz
+        push, factor, yaw = 0.0, 1.0, 0.0
+    else:
+        release_s = number(data, "release_s", "", -10 / 240, bound=RELEASE_S)
+        push = number(data, "push_mps", "", 0.0, bound=PUSH_MPS)
+        factor = number(data, "volume_factor", "", 1.0, bound=VOLUME_FACTOR)
+        yaw = number(data, "yaw_deg", "", 0.0, bound=YAW_DEG)
+    scene = SplashScene(tank, obj, _vector3(data, "release_m", ""), release_s,
+                        camera_from_json(cam) if cam is not None else None, sim_hz,
+                        number(data, "gravity_mps2", "", 9.81, bound=GRAVITY_MPS2), bounds, push, factor, yaw)
     scene.validate()
     return scene
 
@@ -417,14 +499,14 @@ def default_camera(tank: Tank, fps: float = 30.0, n_frames: int = 60) -> Camera:
 
 
 def default_scene(kind: str = "box", volume_cm3: float = 27.0, density_g_cm3: float = 2.7,
-                  drag_water: float = 0.8, area_cm2: float | None = None, start_step: int = 10,
-                  camera: Camera | None = None, material: str | None = None) -> SplashScene:
+                  drag_water: float = 0.8, area_cm2: float | None = None, release_s: float = -10 / 240,
+                  camera: Camera | None = None, material: str | None = None, push_mps: float = 0.0) -> SplashScene:
     """A tank of water and one object let go 15 cm above the water, seen from the side."""
     tank = Tank()
     if area_cm2 is None:
         area_cm2 = equal_area(kind, volume_cm3 * CM3) / CM2
     obj = SplashObject("object", kind, volume_cm3, area_cm2, density_g_cm3, drag_water, material)
-    scene = SplashScene(tank, obj, (0.0, 0.0, tank.water_level_m + RELEASE_ABOVE_WATER_M), start_step,
-                        camera if camera is not None else default_camera(tank))
+    scene = SplashScene(tank, obj, (0.0, 0.0, tank.water_level_m + RELEASE_ABOVE_WATER_M), release_s,
+                        camera if camera is not None else default_camera(tank), push_mps=push_mps)
     scene.validate()
     return scene

@@ -25,7 +25,7 @@ def skeleton(scene) -> Tracks:
         raise GalileoError("splash observations are in the camera's pixels: the scene needs a camera")
     n = int(cam.n_frames)
     o = scene.obj
-    shape = Body.of(o.kind, o.volume_m3, o.area_cm2 * CM2, scene.max_dim_m()).shape
+    shape = Body.of(o.kind, scene.volume_m3, o.area_cm2 * CM2, scene.max_dim_m()).shape
     pos = np.tile(np.asarray(scene.release_m, float), (n, 1))
     obj = ObjectTrack(o.name, "object", pos, np.zeros((n, 3)), np.ones(n, bool), shape, None, "motion",
                       {"kind": o.kind, "volume_cm3": o.volume_cm3})

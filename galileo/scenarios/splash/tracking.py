@@ -2,13 +2,16 @@
 
 1. Background: MOG2 (five components, `galileo.vision.background`) learned backwards over
    the whole video gives the tank as the video ends, with the object where it comes to
-   rest. Frame 0 against it shows the object falling through the air (the highest
-   component) and a ghost of the resting object below it; the ghost's place, grown by
-   END_ZONE_PX, takes the median of the first frames in which it still looks as in frame 0:
-   a background without the object. (Bounded for any video, `galileo.vision.background`:
-   learned from at most MODEL_MAX_FRAMES frames, evenly spaced, at most 0.5 Mpx each.) A
-   frame most of which differs from frame 0 (noise, a cut: `not_the_scene`) is left out of
-   it, no object is seen in it, and tracking goes on from the last frame that showed the tank.
+   rest. Frame 0 against the median of the last frames (`_start_and_rest`) shows where the
+   object starts (the highest region that moved: falling, or held at its release point) and
+   where it comes to rest (the others; a lone region reaching below the water line is the
+   resting place); the start's place takes the last frames' background, the resting
+   place's, grown by END_ZONE_PX, the median of the first frames in which it still looks as
+   in frame 0: a background without the object (a held object is not learnt into it).
+   (Bounded for any video, `galileo.vision.background`: learned from at most
+   MODEL_MAX_FRAMES frames, evenly spaced, at most 0.5 Mpx each.) A frame most of which
+   differs from frame 0 (noise, a cut: `not_the_scene`) is left out of it, no object is
+   seen in it, and tracking goes on from the last frame that showed the tank.
 2. Foreground per frame against it: the object (its largest component), in air or water
    (the water's tint is in the background too).
 3. KLT (`galileo.vision.klt`): good features inside the frame-0 silhouette, Lucas-Kanade
@@ -24,27 +27,42 @@
    dropped, the frame left without one. Back-projected onto the plane y = release_m[1]
    (the object falls straight down) it gives positions in metres; velocities by central
    differences (`galileo.vision.velocity`). Frames without either are `visible: false`.
-5. Bottom-up kind and volume: the silhouette in the first BOTTOM_UP_FRAMES frames fitted
-   (least 1 - IoU) by each kind at the release plane, sizes w (across) and H (high); an
-   hcyl needs a silhouette HCYL_ASPECT times wider than high and a better fit than a box; the
-   depth assumption: a box has a square bottom (depth w), a vertical cylinder is round
-   (depth w), a horizontal cylinder's depth is its diameter H. Volumes: box w^2 H,
-   vcyl pi/4 w^2 H, hcyl pi/4 H^2 w. A box and a vertical cylinder differ only in how
-   the top face's outline curves, a few pixels: the vcyl wins only when its fit is
-   better by KIND_MARGIN, else box.
+5. Bottom-up kind and volume (`bottom_up`), measured on up to BOTTOM_UP_MAX_FRAMES
+   silhouettes of the object in the air (its bottom AIR_MARGIN_PX above the water line),
+   evenly spaced (a falling object may turn): each fitted (least 1 - IoU) by each kind at
+   the release plane, sizes w (across) and H (high). The camera sees width and height, never
+   depth: the depth assumption per kind, with its uncertainty (DEPTH_LOG_SD, the SD of the
+   log of depth over its assumed value): a box's bottom is square (depth w; everyday blocks
+   run from half to twice as deep as wide: log 2 / 1.645), a vertical cylinder round (depth
+   w; a slightly oval one: log 1.2 / 1.645), a horizontal cylinder's depth its diameter H
+   (it may lie turned: log 1.5 / 1.645). Volumes: box w^2 H, vcyl pi/4 w^2 H, hcyl pi/4 H^2 w.
+   `kind_probs`: a softmax of the kinds' mean losses, at a temperature of the frame-to-frame
+   spread of the loss differences, and at least the IoU's own resolution (the outline moved
+   by BOUNDARY_PX: from a side view a box, an upright and a lying cylinder differ by a few
+   outline pixels, so the kinds are often nearly equally probable, and said so). `kind`: the
+   most probable; `volume_cm3`: its median per-frame volume; `volume_log_sd`: the depth
+   assumption's, the frames' spread, a pixel on each size and the other kinds' volumes
+   weighed by their probabilities, added in quadrature (the volume factor's prior in
+   inference is exp(+-2 sd) around it). The first BOTTOM_UP_FRAMES silhouettes give the
+   shape the tracker centres silhouettes on (`first_guess`).
+6. The release (`_release`): the last frame at which the object's centre is within HOLD_PX
+   of where it was first seen (`release_s`: its time; `held_frames`); null where it moves
+   from its first frame (let go before the video starts). Inference puts the release's
+   prior around it.
 
 The video is streamed (`galileo.video.VideoStream`), never held; a scene whose camera sees
 none of it (the tank, the release point) is refused before any of it. The tracks carry
 notes for unevenly timed frames (a variable frame rate) and an object seen in few frames.
 
-Note: the rendered videos open with the object falling through the air (released 12-20 cm
-above the water, shown from physics step 5-30 on), so the first silhouettes are measured in
-air. Under water the renderer draws no refraction (a real flat-walled tank magnifies what is
+Note: the rendered videos open with the object held at its release point or already
+falling through the air (released 12-20 cm above the water); either way its first
+silhouettes are in the air. Under water the renderer draws no refraction (a real flat-walled tank magnifies what is
 under water by up to the water's index, 1.33, which this does not correct).
 """
 from __future__ import annotations
 
 import math
+from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -54,13 +72,14 @@ from ...datatypes import ObjectTrack, Tracks
 from ...errors import GalileoError, StillVideo
 from ...progress import tqdm
 from ...shapes import Box, Cylinder
-from ...video import VideoStream
-from ...vision.background import (MODEL_MAX_FRAMES, blobs, clean, dilate, foreground, frames_at, full_res,
+from ...video import VideoStream, write_video, yuv_to_rgb
+from ...vision.background import (MODEL_MAX_FRAMES, blobs, clean, dilate, erode, foreground, frames_at, full_res,
                                   largest_component, mog2_background, noise_sd, not_the_scene, spread, work_scale,
                                   yuv_image)
+from ...vision.draw import draw_tracks
 from ...vision.klt import flow, klt_window, seed_features
 from ...vision.pose import rot_y
-from ...vision.silhouette import fit_silhouette, shape_silhouette
+from ...vision.silhouette import crop, fit_silhouette, shape_silhouette
 from ...vision.tracker import rarely_seen_notes
 from ...vision.velocity import velocity_from_positions
 from .scene import CM3, KINDS
@@ -70,10 +89,22 @@ END_ZONE_PX = 9            # the object's resting place, grown by this, takes th
 GHOST_MIN_FRACTION = 0.2   # frame 0's foreground components this fraction of the largest's area count
 N_FEATURES = 40
 MIN_FEATURES = 4
-BOTTOM_UP_FRAMES = 3       # silhouettes fitted for kind and size
+BOTTOM_UP_FRAMES = 3       # the first silhouettes, fitted for the shape the tracker centres silhouettes on
+BOTTOM_UP_MAX_FRAMES = 8   # silhouettes in the air fitted for kind and volume at most (evenly spaced; each
+                           # costs three Nelder-Mead fits, ~0.1 s)
 FIT_PAD_PX = 20
-HCYL_ASPECT = 1.5          # a horizontal cylinder's silhouette is at least this much wider than high
-KIND_MARGIN = 0.01         # 1 - IoU by which a vcyl must beat a box
+AIR_MARGIN_PX = 3          # in the air: the object's bottom this many pixels above the water line at least
+                           # (the surface's sheen and the waterline are a band a few pixels high)
+ENTRY_PX = 3               # it has entered the water when its bottom comes within this of the water line
+                           # (a floater with a 2 mm draft: its bottom is a few pixels below it, the surface's
+                           # band hides them)
+HOLD_PX = 2.0              # held: the centre within this of where it was first seen (the silhouette's box
+                           # centre is good to about a pixel; a fall from rest moves it ~5 px in the first
+                           # frame at 30 fps, 1 mm/px)
+# the depth the camera cannot see, per kind: the SD of the log volume its assumption leaves (module docstring)
+BOUNDARY_PX = 0.5          # a silhouette's outline is known to this (px): the kinds' fits resolve no finer
+DEPTH_LOG_SD = {"box": math.log(2.0) / 1.645, "vcyl": math.log(1.2) / 1.645, "hcyl": math.log(1.5) / 1.645}
+DEBUG_COLORS = {"object": (255, 200, 0)}   # debug video (RGB)
 AREA_OK = (0.6, 1.6)       # a silhouette is usable within these ratios of the fitted shape's area
 MAX_SPEED_MPS = 3.0        # a centre farther than this x the time since the last one from it is dropped
                            # (free fall from the highest release reaches ~2 m/s at the water)
@@ -116,8 +147,8 @@ def _fit(cam, mask: np.ndarray, y_plane: float, kind: str):
     return float(res.fun), np.array(res.x[:2]), math.exp(res.x[2]), math.exp(res.x[3])
 
 
-def bottom_up(cam, masks: list[np.ndarray], y_plane: float) -> tuple[str, float, float]:
-    """Kind, width and height (m) from a few silhouettes (median over them)."""
+def _kind_sizes(cam, masks: list[np.ndarray], y_plane: float):
+    """Per kind: the per-frame fit losses (1 - IoU) and sizes (w, h) of the masks."""
     losses = {k: [] for k in KINDS}
     sizes = {k: [] for k in KINDS}
     for m in masks:
@@ -125,16 +156,52 @@ def bottom_up(cam, masks: list[np.ndarray], y_plane: float) -> tuple[str, float,
             loss, _, w, h = _fit(cam, m, y_plane, k)
             losses[k].append(loss)
             sizes[k].append((w, h))
-    mean = {k: float(np.mean(v)) for k, v in losses.items()}
-    med = {k: np.median(np.array(v), axis=0) for k, v in sizes.items()}
-    # a lying cylinder: a wide-and-short silhouette that it fits better than a box (a cube
-    # fits both about as well: its depth is its height either way)
-    wide = med["hcyl"][0] > HCYL_ASPECT * med["hcyl"][1]
-    kind = "hcyl" if wide and mean["hcyl"] < mean["box"] else "box"
-    if kind == "box" and mean["vcyl"] < mean["box"] - KIND_MARGIN:
-        kind = "vcyl"
-    w, h = med[kind]
+    return {k: np.array(v) for k, v in losses.items()}, {k: np.array(v) for k, v in sizes.items()}
+
+
+def first_guess(cam, masks: list[np.ndarray], y_plane: float) -> tuple[str, float, float]:
+    """Kind, width and height (m) from a few silhouettes: the shape the tracker takes to
+    centre the silhouettes on (`bottom_up` measures the object once it is tracked)."""
+    losses, sizes = _kind_sizes(cam, masks, y_plane)
+    kind = min(KINDS, key=lambda k: float(losses[k].mean()))
+    w, h = np.median(sizes[kind], axis=0)
     return kind, float(w), float(h)
+
+
+def bottom_up(cam, masks: list[np.ndarray], y_plane: float, m_per_px: float) -> tuple[str, float, float, dict]:
+    """Kind, width and height (m) and the track's `bottom_up` dict from silhouettes of the
+    object in the air (each fitted by every kind; see the module docstring)."""
+    losses, sizes = _kind_sizes(cam, masks, y_plane)
+    n = len(masks)
+    mean = np.array([losses[k].mean() for k in KINDS])
+    # the temperature: how much a kind's loss lead moves from frame to frame (the SD of the
+    # per-frame loss differences, pooled over kinds; not divided by sqrt(n): the frames show
+    # one object from one side, they are not independent views), at least the IoU's own
+    # resolution: the silhouette's outline moved by BOUNDARY_PX (a blurred, compressed edge
+    # is not sharper than that) changes 1 - IoU by about that many outline pixels over the
+    # area; fits closer than that cannot tell the kinds apart (frames that copy each other,
+    # a held object, cannot sharpen it)
+    diff = np.array([losses[k] - losses[KINDS[int(np.argmin(mean))]] for k in KINDS])
+    area_px = float(np.mean([m.sum() for m in masks]))
+    outline_px = float(np.mean([(m & ~erode(m, 3)).sum() for m in masks]))
+    spread_sd = float(np.sqrt(np.mean(np.var(diff, axis=1, ddof=1)) * len(KINDS) / (len(KINDS) - 1))) if n > 1 else 0.0
+    tau = max(spread_sd, BOUNDARY_PX * outline_px / max(area_px, 1.0))
+    z = -(mean - mean.min()) / tau
+    p = np.exp(z) / np.exp(z).sum()
+    kind = KINDS[int(np.argmax(p))]
+    log_v = {k: np.log([volume_cm3(k, w, h) for w, h in sizes[k]]) for k in KINDS}
+    centre = {k: float(np.median(log_v[k])) for k in KINDS}
+    w, h = np.median(sizes[kind], axis=0)
+    # the log volume's variance: the depth assumption, the frame-to-frame spread, a pixel
+    # on each measured size (w twice: the depth is taken from it), the other kinds' volumes
+    # as likely as the kinds
+    w_px, hh_px = max(w / m_per_px, 1.0), max(h / m_per_px, 1.0)
+    var = (DEPTH_LOG_SD[kind] ** 2 + (float(np.var(log_v[kind], ddof=1)) if n > 1 else 0.0)
+           + 2.0 / w_px ** 2 + 1.0 / hh_px ** 2
+           + sum(pk * (centre[k] - centre[kind]) ** 2 for k, pk in zip(KINDS, p)))
+    info = {"kind": kind, "volume_cm3": float(math.exp(centre[kind])), "volume_log_sd": float(math.sqrt(var)),
+            "kind_probs": {k: float(pk) for k, pk in zip(KINDS, p)}, "frames_in_air": n}
+    return kind, float(w), float(h), info
 
 
 def plausible(cam, y_plane: float, c: np.ndarray, c_prev: np.ndarray | None, dt_s: float) -> bool:
@@ -146,32 +213,48 @@ def plausible(cam, y_plane: float, c: np.ndarray, c_prev: np.ndarray | None, dt_
     return float(np.linalg.norm(p[0] - p[1])) <= MAX_SPEED_MPS * dt_s
 
 
-def _resting_ghost(fg0: np.ndarray) -> np.ndarray | None:
-    """Where the object comes to rest, from frame 0's foreground against the late background:
-    every sizeable component but the highest one (the object falling through the air at
-    frame 0; the late background holds the object at rest, which shows as a ghost where
-    frame 0 sees the empty tank). None without one."""
-    comps = blobs(fg0, GHOST_MIN_FRACTION)
-    if len(comps) < 2:
-        return None
-    tops = [int(np.nonzero(c.any(axis=1))[0][0]) for c in comps]
-    falling = int(np.argmin(tops))
-    return np.any([c for j, c in enumerate(comps) if j != falling], axis=0)
+def _start_and_rest(fg: np.ndarray, water_row: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(where the object starts, where it comes to rest): the sizeable components of a
+    foreground that shows the object at both (an early frame against a late one, or against
+    a background that holds one of them). The object starts at or near its release point,
+    above the water (held there, or falling through the air), and comes to rest in the water:
+    the highest component is the start, the others are the resting place. A lone component
+    (the other did not show: a light object against a light wall) is the resting place if it
+    reaches below the water line (image row `water_row` at the release point), else the start.
+    None for either that does not show."""
+    comps = blobs(fg, GHOST_MIN_FRACTION)
+    if not comps:
+        return None, None
+    rows = [np.nonzero(c.any(axis=1))[0] for c in comps]
+    if len(comps) == 1:
+        return (None, comps[0]) if rows[0][-1] > water_row else (comps[0], None)
+    start = int(np.argmin([r[0] for r in rows]))
+    return comps[start], np.any([c for j, c in enumerate(comps) if j != start], axis=0)
 
 
-def background(sample: list[np.ndarray], early: list[np.ndarray], noise: float) -> np.ndarray:
+def background(sample: list[np.ndarray], early: list[np.ndarray], late: list[np.ndarray], noise: float,
+               water_row: float) -> np.ndarray:
     """The tank without the object: MOG2 learned backwards over the video (`sample`: its frames,
-    or at most MODEL_MAX_FRAMES of them evenly spaced; the tank as the video ends, the object at
-    rest in it), its resting place replaced by the median of the first frames (`early`: the
-    first EARLY_FRAMES) in which that place still looks as in frame 0 (before the object got
-    there). MOG2 learned forwards over the first frames is no substitute: it keeps frame 0's
-    object, and an object that stops within those frames."""
+    or at most MODEL_MAX_FRAMES of them evenly spaced), with the two places it may keep the
+    object replaced (`_start_and_rest`, from the first frame against the last):
+    * where the object starts, by the median of the last frames (`late`: the last
+      EARLY_FRAMES), which show it empty. A backwards MOG2 weighs the first frames most: an
+      object held still at its release point for a third of the video stays in it, and
+      after the release that place shows a ghost of it, larger than the falling object;
+    * where it comes to rest, by the median of the first frames (`early`: the first
+      EARLY_FRAMES) in which that place still looks as in frame 0 (before the object got
+      there). MOG2 learned forwards over the first frames is no substitute: it keeps frame
+      0's object, and an object that stops within those frames."""
     bg = mog2_background(sample, reverse=True)
-    first = early[0]
-    ghost = _resting_ghost(clean(foreground(first, bg, noise)) > 0)
-    if ghost is None:
+    first, last = early[0], np.median(np.stack(late), axis=0).astype(bg.dtype)
+    start, rest = _start_and_rest(clean(foreground(first, last, noise)) > 0, water_row)
+    if start is not None and rest is not None:   # (one blob: the object did not move far)
+        zone = dilate(start, END_ZONE_PX) & ~dilate(rest, END_ZONE_PX)
+        bg[zone] = last[zone]
+    rest = _start_and_rest(clean(foreground(first, bg, noise)) > 0, water_row)[1]
+    if rest is None:
         return bg
-    zone = dilate(ghost, END_ZONE_PX)
+    zone = dilate(rest, END_ZONE_PX)
     k = 1
     while k < len(early) and not (clean(foreground(early[k], first, noise)) > 0)[zone].any():
         k += 1
@@ -179,13 +262,13 @@ def background(sample: list[np.ndarray], early: list[np.ndarray], noise: float) 
     return bg
 
 
-def _learn_tank(video: VideoStream, n: int, scale: float, bar):
+def _learn_tank(video: VideoStream, n: int, scale: float, bar, water_row: float):
     """The first pass: (the background, the noise, which frames show the scene). Frames that
     show something else (`not_the_scene`) are left out of the background; the frames it is
     learned from are kept in this pass (taken in another from the frames that show the scene,
     if some do not)."""
     planned = set(spread(np.arange(n), MODEL_MAX_FRAMES).tolist())
-    sample, early = [], []
+    sample, early, late = [], [], deque(maxlen=EARLY_FRAMES)
     shown = np.ones(n, bool)
     noise = None
     for f, (y, uv) in enumerate(video.yuv()):
@@ -198,11 +281,12 @@ def _learn_tank(video: VideoStream, n: int, scale: float, bar):
             continue
         if len(early) < EARLY_FRAMES:
             early.append(img)
+        late.append(img)
         if f in planned:
             sample.append(img)
     if not shown.all():
         sample = frames_at(video, spread(np.flatnonzero(shown), MODEL_MAX_FRAMES), scale)
-    return background(sample, early, noise), noise, shown
+    return background(sample, early, list(late), noise, water_row), noise, shown
 
 
 def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=None) -> Tracks:
@@ -225,8 +309,13 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     n = int(cam.n_frames)
     hw = (cam.height_px, cam.width_px)
     scale = work_scale(hw, 1.0)
-    bar = tqdm(total=2 * n, desc="tracking", unit="frame", disable=not progress)
-    bg, noise, shown = _learn_tank(video, n, scale, bar)
+    y_plane = float(scene.release_m[1])
+    water = scene.tank.water_level_m
+    release = np.asarray(scene.release_m, float)
+    m_per_px = float((cam.world_to_camera[:3, :3] @ release + cam.world_to_camera[:3, 3])[2] / cam.K[0, 0])
+    water_row = float(cam.project(np.array([release[0], y_plane, water]))[1]) * scale
+    bar = tqdm(total=(3 if debug_video is not None else 2) * n, desc="tracking", unit="frame", disable=not progress)
+    bg, noise, shown = _learn_tank(video, n, scale, bar, water_row)
 
     def silhouettes():
         """Per frame: (luma, the object's silhouette at full resolution or None)."""
@@ -234,7 +323,7 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
             fg = full_res(foreground(yuv_image(y, uv, scale), bg, noise), hw) if shown[i] else None
             yield y, None if fg is None else largest_component(fg)
 
-    # bottom-up: the first usable silhouettes
+    # the shape to centre silhouettes on: the first usable silhouettes
     first = []
     for _, blob in silhouettes():
         if blob is not None:
@@ -244,8 +333,7 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     if len(first) < 2:
         bar.close()
         raise StillVideo(f"nothing moves in {video_path}: no object against the tank's background")
-    y_plane = float(scene.release_m[1])
-    kind, w, h = bottom_up(cam, first, y_plane)
+    kind, w, h = first_guess(cam, first, y_plane)
     shape, rot = _shape(kind, w, h)
 
     def expected(uv):
@@ -263,6 +351,8 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     shift = np.zeros(2)                              # the features' motion since frame i_prev
     features = []
     prev, last = None, 0                             # the last frame that shows the scene
+    in_air = []                                      # (frame, region, silhouette there) of the object in the air
+    wet, jumps = False, 0                            # whether it reached the water; silhouettes dropped as jumps
     for i, (gray, blob) in enumerate(silhouettes()):
         bar.update()
         if not shown[i]:   # not the scene: nothing seen in it; tracking goes on from the last that was
@@ -293,7 +383,8 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
                 c = c_box
         dt = (i - i_prev) / cam.fps if c_prev is not None else 0.0
         if c is not None and not plausible(cam, y_plane, c, c_prev, dt):
-            c = None
+            c, jumps = None, jumps + 1
+        from_silhouette = c is not None
         if c is None and c_klt is not None and plausible(cam, y_plane, c_klt, c_prev, dt):
             c = c_klt
         if c is not None:
@@ -301,22 +392,96 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
                 v_prev = (c - c_prev) / (i - i_prev)
             centre[i] = c_prev = c
             i_prev, shift = i, np.zeros(2)
+            bottom_m = backproject_to_plane(cam, c[None], y_plane)[0, 2] - h / 2
+            wet = wet or bottom_m < water + AIR_MARGIN_PX * m_per_px
+            if from_silhouette and not wet:
+                in_air.append((i, *crop(blob, FIT_PAD_PX)))
         if blob is not None and len(pts) < max(MIN_FEATURES, N_FEATURES // 2):
             pts = np.concatenate([pts, seed_features(gray, blob, N_FEATURES - len(pts), avoid=pts)])
         features.append(pts.copy())
         prev, last = gray, i
-    bar.close()
     visible = np.all(np.isfinite(centre), axis=1)
     pos = np.full((n, 3), np.nan)
     pos[visible] = backproject_to_plane(cam, centre[visible], y_plane)
     lowest = pos[visible, 2] - h / 2
-    if not np.any(lowest < scene.tank.water_level_m):
+    if not np.any(lowest < water + ENTRY_PX * m_per_px):
+        bar.close()
         raise GalileoError(f"nothing enters the water in {video_path}: the object stays above the water line")
+    kind_sizes, notes = _measure(cam, in_air, hw, y_plane, m_per_px, first)
+    kind, w, h, found = kind_sizes
+    found.update(_release(centre, visible, cam.fps))
+    shape, _ = _shape(kind, w, h)
     vel = velocity_from_positions(pos, visible, cam.fps)
-    obj = ObjectTrack(scene.obj.name, "object", pos, vel, visible, shape, None, "motion",
-                      {"kind": kind, "volume_cm3": volume_cm3(kind, w, h)}, centre, features)
-    notes = [note for note in (video.timing_note(),) if note] + rarely_seen_notes([obj])
-    return Tracks(cam.fps, [obj], notes).check()   # what `galileo track` writes, `Tracks.load` reads
+    obj = ObjectTrack(scene.obj.name, "object", pos, vel, visible, shape, None, "motion", found, centre, features)
+    notes = [note for note in (video.timing_note(),) if note] + notes + rarely_seen_notes([obj])
+    notes += _track_notes(obj, pos, visible, release, water, h, jumps, m_per_px)
+    tracks = Tracks(cam.fps, [obj], notes).check()   # what `galileo track` writes, `Tracks.load` reads
+    if debug_video is not None:
+        write_video(debug_video, (draw_tracks(yuv_to_rgb(y, uv), tracks, f, DEBUG_COLORS)
+                                  for f, (y, uv) in enumerate(_counted(video.yuv(), bar))), cam.fps)
+    bar.close()
+    return tracks
+
+
+def _counted(frames, bar):
+    """The frames, each counted on the progress bar."""
+    for f in frames:
+        bar.update()
+        yield f
+
+
+def _measure(cam, in_air: list, hw: tuple[int, int], y_plane: float, m_per_px: float, first: list):
+    """((kind, w, h, the bottom_up dict), notes) from the silhouettes in the air (at most
+    BOTTOM_UP_MAX_FRAMES of them, evenly spaced); from the first silhouettes, with a note,
+    when the object was never seen whole in the air."""
+    notes = []
+    if len(in_air) >= 1:
+        masks = []
+        for j in spread(np.arange(len(in_air)), BOTTOM_UP_MAX_FRAMES):
+            _, (x0, y0, cw, ch), sil = in_air[int(j)]
+            m = np.zeros(hw, bool)
+            m[y0:y0 + ch, x0:x0 + cw] = sil
+            masks.append(m)
+    else:
+        masks = first
+        notes.append("the object is never seen whole above the water: its shape kind and volume are measured "
+                     "on its first silhouettes, which may be in the water (tinted, and magnified by the glass)")
+    return bottom_up(cam, masks, y_plane, m_per_px), notes
+
+
+def _release(centre: np.ndarray, visible: np.ndarray, fps: float) -> dict:
+    """The release seen in the track: `release_s`, the video time of the last frame at which
+    the object is still where it was first seen (within HOLD_PX), None if it moves from the
+    first frame it is seen; `held_frames`, how many frames it is seen there."""
+    seen = np.flatnonzero(visible)
+    if len(seen) < 2:
+        return {"release_s": None, "held_frames": 0}
+    still = np.linalg.norm(centre[seen] - centre[seen[0]], axis=1) <= HOLD_PX
+    k = int(np.argmin(still)) if not still.all() else len(seen)   # the first seen frame that has moved
+    if k < 2:
+        return {"release_s": None, "held_frames": 0}
+    return {"release_s": float(seen[k - 1] / fps), "held_frames": k}
+
+
+def _track_notes(obj, pos: np.ndarray, visible: np.ndarray, release: np.ndarray, water: float, h: float,
+                 jumps: int, m_per_px: float) -> list[str]:
+    """Notes on a track that does not look like a drop: first seen in the water (as a ghost
+    of where it comes to rest is); silhouettes left out as jumps."""
+    notes = []
+    seen = np.flatnonzero(visible)
+    if len(seen):
+        f = int(seen[0])
+        p = pos[f]
+        off_m = float(np.hypot(p[0] - release[0], p[2] - release[2]))
+        if p[2] - h / 2 < water:
+            notes.append(f"{obj.name} is first seen in the water (frame {f}, {off_m * 100:.1f} cm from its release "
+                         f"point): the video should open with it above the water; check the scene's release point "
+                         f"and water level, and that the object shows against the wall behind it")
+    if jumps:
+        notes.append(f"{obj.name}'s silhouette jumped farther than it can move ({MAX_SPEED_MPS} m/s) in {jumps} "
+                     f"frame{'s' if jumps > 1 else ''}: those were left out (another moving thing, or a ghost "
+                     f"of the object in the background)")
+    return notes
 
 
 def scene_points(scene) -> dict[str, np.ndarray]:
