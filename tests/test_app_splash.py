@@ -71,7 +71,7 @@ def test_gui_has_inputs_for_each_splash_latent_and_sigma_px(splash_viewer):
     from ui.viewer import parse_numbers
 
     ctrl, v = splash_viewer
-    names = ("area_cm2", "density_g_cm3", "drag_water", "release_s", "push_mps", "volume_factor")
+    names = ("area_cm2", "density_g_cm3", "drag_water", "release_s", "push_mps", "log_volume_factor")
     assert ctrl.names == names
     st = ctrl.settings
     for n in names:

@@ -204,7 +204,7 @@ def test_mutated_scene_is_refused_in_one_line_or_simulates_finite(scenario, data
 
 RAMP_NAMES = ["m1_kg", "k1", "m2_kg", "k2", "offset_units", "angle_deg", "e1", "e2", "e_collision",
               "log10_sigma_mps", "mass", ""]
-SPLASH_NAMES = ["area_cm2", "density_g_cm3", "drag_water", "release_s", "push_mps", "volume_factor", "volume_cm3",
+SPLASH_NAMES = ["area_cm2", "density_g_cm3", "drag_water", "release_s", "push_mps", "log_volume_factor", "volume_cm3",
                 "start_step", "m1_kg"]
 numbers = (st.floats(allow_nan=True, allow_infinity=True) | st.integers(-10 ** 400, 10 ** 400)
            | st.sampled_from([v for v in SPECIAL if isinstance(v, (int, float)) and not isinstance(v, bool)])

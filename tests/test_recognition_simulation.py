@@ -260,5 +260,5 @@ def test_draws_outside_the_priors_support_are_dropped():
 
     drawn = _draw_values(splash.latents(splash.prepare(scene, Tracks(scene.fps, [track]))), 24, rng)
     ok = [d for d in drawn   # the volume each draw simulates: the bottom-up 20 cm^3 x its volume factor
-          if dimensions("vcyl", 20e-6 * d["volume_factor"], d["area_cm2"] * 1e-4, scene.max_dim_m()) is not None]
+          if dimensions("vcyl", 20e-6 * math.exp(d["log_volume_factor"]), d["area_cm2"] * 1e-4, scene.max_dim_m()) is not None]
     assert 0 < len(values) < 24 and values == ok

@@ -60,7 +60,7 @@ def test_a_release_s_proposal_simulates_nothing(sinker):
     scene, tracks = sinker
     scenario = registry.get("splash")
     lik = scenario.likelihood(scenario.prepare(scene, tracks), tracks, 1.0)
-    x = np.array([scene.obj.area_cm2, 2.0, 0.7, TRUE_RELEASE_S, 0.0, 1.0])
+    x = np.array([scene.obj.area_cm2, 2.0, 0.7, TRUE_RELEASE_S, 0.0, 0.0])
     value, _ = lik(x)
     steps = lik.steps
     for dt in (-STEP_S, STEP_S, 3 * STEP_S, 0.1 - TRUE_RELEASE_S):
@@ -75,7 +75,7 @@ def test_an_area_with_no_object_that_fits_is_rejected_without_simulating(sinker)
     scene, tracks = sinker
     scenario = registry.get("splash")
     lik = scenario.likelihood(scenario.prepare(scene, tracks), tracks, 1.0)
-    value, early = lik(np.array([0.101, 2.0, 0.7, TRUE_RELEASE_S, 0.0, 1.0]))   # 20 cm^3 over 0.1 cm^2: a 2 m rod
+    value, early = lik(np.array([0.101, 2.0, 0.7, TRUE_RELEASE_S, 0.0, 0.0]))   # 20 cm^3 over 0.1 cm^2: a 2 m rod
     assert value == -math.inf and lik.steps == 0
 
 
@@ -86,10 +86,10 @@ def test_chains_start_where_the_seed_says(sinker):
     volume factor drawn from the prior."""
     res = infer(scene, tracks, RunConfig(chains=4, sweeps=1, seed=0, workers=1), progress=False)
     s0 = equal_area("vcyl", 20.0e-6) / CM2
-    assert res.names == ("area_cm2", "density_g_cm3", "drag_water", "release_s", "push_mps", "volume_factor")
+    assert res.names == ("area_cm2", "density_g_cm3", "drag_water", "release_s", "push_mps", "log_volume_factor")
     assert np.allclose(res.starts[:, 0], s0)
     assert np.allclose(res.starts[:, 1], 1.5)   # the tracks end under water: it sank (the seed's 0.5 for floaters)
-    lo, hi = res.settings.bounds["volume_factor"]   # drawn: the video hardly measures the volume
+    lo, hi = res.settings.bounds["log_volume_factor"]   # drawn: the video hardly measures the volume
     assert len(set(res.starts[:, 5])) == 4 and np.all((res.starts[:, 5] >= lo) & (res.starts[:, 5] <= hi))
     # the release: the free fall fitted to the frames in the air, within a physics step of the truth
     assert len(set(res.starts[:, 3])) == 1 and abs(res.starts[0, 3] - scene.release_s) <= STEP_S
@@ -117,7 +117,7 @@ def test_the_seeds_protocol_finds_the_truths_ridge():
     res = infer(scene, tracks, RunConfig(chains=50, sweeps=75, seed=1), progress=False)
     scenario = registry.get("splash")
     lik = scenario.likelihood(scenario.prepare(scene, tracks), tracks, 1.0)
-    l_true = lik(np.array([scene.obj.area_cm2, 1.6, 0.7, TRUE_RELEASE_S, 0.0, 1.0]))[0]
+    l_true = lik(np.array([scene.obj.area_cm2, 1.6, 0.7, TRUE_RELEASE_S, 0.0, 0.0]))[0]
     assert abs(res.map["release_s"] - TRUE_RELEASE_S) <= 3 * STEP_S, res.map
     assert res.map_loglik > l_true - 25.0, (res.map, res.map_loglik, l_true)
     assert res.derived()["mass_kg"] == pytest.approx(0.032, rel=0.15)
@@ -138,8 +138,8 @@ def test_cli_simulate_and_infer_on_a_splash_scene(sinker, tmp_path):
                  "--out", str(tmp_path / "result.json")]) == 0
     d = json.loads((tmp_path / "result.json").read_text())
     assert d["scenario"] == "splash" and d["latents"] == ["area_cm2", "density_g_cm3", "drag_water", "release_s",
-                                                          "push_mps", "volume_factor"]
-    assert d["volume_cm3"] == pytest.approx(20.0 * d["map"]["volume_factor"])   # the bottom-up 20 cm^3 x the factor
+                                                          "push_mps", "log_volume_factor"]
+    assert d["volume_cm3"] == pytest.approx(20.0 * math.exp(d["map"]["log_volume_factor"]))   # 20 cm^3 x the factor
     assert d["mass_kg"] == pytest.approx(d["map"]["density_g_cm3"] * d["volume_cm3"] / 1000)
     assert isinstance(d["map_at_prior_edge"], list)
     assert d["config"]["sigma_px"] == 1.0
@@ -228,7 +228,7 @@ def test_the_volume_is_a_posterior_only_where_its_factor_moves(sinker):
     base = np.column_stack([rng.uniform(5, 10, 200), rng.uniform(0.8, 1.6, 200), rng.uniform(0.5, 1.5, 200),
                             rng.uniform(-0.1, 0.0, 200), rng.uniform(0.0, 0.2, 200)])
     for factor in (np.ones(200), rng.uniform(0.7, 1.4, 200)):
-        rows = np.column_stack([base, factor])
+        rows = np.column_stack([base, np.log(factor)])
         got = derived_summaries(registry.of(scene), scene, tuple(scene.latents()), rows)
         fixed = bool(np.ptp(factor) == 0)
         assert got["volume_cm3"].get("fixed", False) is fixed and ("log_volume_cm3" in got) is not fixed
@@ -249,7 +249,7 @@ def test_water_drag_moves_under_the_default_moves_and_keeps_the_seeds_widths_und
     import dataclasses
 
     scene, tracks = sinker
-    scene = dataclasses.replace(scene, bounds={**scene.bounds, "volume_factor": (0.99, 1.01)})
+    scene = dataclasses.replace(scene, bounds={**scene.bounds, "log_volume_factor": (-0.01, 0.01)})
     spans = {}
     for moves in ("default", "paper"):
         r = infer(scene, tracks, RunConfig(chains=4, sweeps=20, seed=0, workers=1, moves=moves), progress=False)
@@ -288,3 +288,27 @@ def test_an_object_held_then_pushed_is_recovered_where_a_release_before_frame_0_
     d_old = old.posterior()["density_g_cm3"]
     assert not d_old["q05"] <= 1.6 <= d_old["q95"], d_old
     assert "release_s" in old.at_prior_edge() and "release_s" not in free.at_prior_edge()
+
+
+def test_the_release_prior_follows_the_frame_the_object_is_first_seen_in():
+    """Issue 28: an object held 0.375 s and then pushed, that the tracker first sees in frame 17
+    (a light object against a light wall, seen only in the water) and so reports falling from
+    its first frame (release_s null): the release prior must hold the truth (it was put before
+    frame 0, where the MAP then sat on its edge). The window: after the first frame seen by at
+    most the free fall to the water (Newton: sqrt(2 h / g)) plus 0.25 s, before the next frame."""
+    import dataclasses
+    import math
+
+    from galileo.scenarios.splash import priors_from_tracks
+    from galileo.scenarios.splash.synthetic import synthetic_tracks
+
+    truth = default_scene("vcyl", 8.0, 1.75, 1.0, release_s=0.375, push_mps=0.15)
+    tracks = synthetic_tracks(truth, truth.latents(), np.random.default_rng(0), 0.5)
+    o = tracks.objects[0]
+    o.visible[:17] = False
+    o.bottom_up.update({"release_s": None, "volume_log_sd": 0.3})
+    guess = dataclasses.replace(truth, release_s=-10 / 240, push_mps=0.0)
+    lo, hi = priors_from_tracks(guess, guess.obj, o.bottom_up, tracks)["release_s"]
+    fall_s = math.sqrt(2 * (guess.release_m[2] - guess.tank.water_level_m) / 9.81)
+    assert lo == pytest.approx(17 / 30 - fall_s - 0.25) and hi == pytest.approx(18 / 30)
+    assert lo < 0.375 < hi

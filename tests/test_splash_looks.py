@@ -148,7 +148,7 @@ def test_truth_never_reaches_inference(rendered):
     wrong = dataclasses.replace(
         scene, obj=dataclasses.replace(o, kind=kind, volume_cm3=volume_cm3, density_g_cm3=0.3, drag_water=1.9,
                                        area_cm2=equal_area(kind, volume_cm3 * 1e-6) * 1e4 * 1.2),
-        release_s=0.7, push_mps=0.4, volume_factor=1.3)
+        release_s=0.7, push_mps=0.4, log_volume_factor=0.26)
     wrong.validate()
     scenario = registry.of(scene)
     tracks = scenario.track(folder / "video.mp4", scene, progress=False)
@@ -160,6 +160,6 @@ def test_truth_never_reaches_inference(rendered):
     assert a.map == b.map
 
     def seen(p):
-        return p.obj.kind, p.obj.volume_cm3, p.obj.area_cm2, p.bounds, p.release_s, p.volume_factor
+        return p.obj.kind, p.obj.volume_cm3, p.obj.area_cm2, p.bounds, p.release_s, p.log_volume_factor
 
     assert seen(a.scene) == seen(b.scene)

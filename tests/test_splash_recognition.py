@@ -59,7 +59,7 @@ def test_label_is_map_density_times_volume(demo):
     _, _, _, tracks, prepared = demo
     splash = registry.get("splash")
     values = {"area_cm2": 9.0, "density_g_cm3": 1.25, "drag_water": 0.9, "release_s": -5 / 240, "push_mps": 0.0,
-              "volume_factor": 1.3}
+              "log_volume_factor": math.log(1.3)}
     lab = splash.recognition_label(prepared, tracks, values)
     assert set(lab) == {"object"} and lab["object"]["friction"] is None
     assert lab["object"]["mass_kg"] == pytest.approx(1.25 * 1.3 * prepared.obj.volume_cm3 / 1000.0, rel=1e-12)

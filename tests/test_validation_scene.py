@@ -126,9 +126,9 @@ def test_types_and_finite_values(tmp_path, change, message):
     (SPLASH, (("release_s",), math.nan), "release_s: expected a finite number, got nan"),
     (SPLASH, (("push_mps",), -0.1), "push_mps: -0.1 is outside [0, 5]"),
     (SPLASH, (("push_mps",), 6), "push_mps: 6 is outside [0, 5]"),
-    (SPLASH, (("volume_factor",), 0), "volume_factor: 0 is outside (0, 100]"),
-    (SPLASH, (("volume_factor",), 101), "volume_factor: 101 is outside (0, 100]"),
-    (SPLASH, (("volume_factor",), 4), "object.volume_cm3 x volume_factor: 108.0 is outside [0.01, 100]"),
+    (SPLASH, (("log_volume_factor",), -5.1), "log_volume_factor: -5.1 is outside [-5, 5]"),
+    (SPLASH, (("log_volume_factor",), 5.1), "log_volume_factor: 5.1 is outside [-5, 5]"),
+    (SPLASH, (("log_volume_factor",), 1.4), "object.volume_cm3 x exp(log_volume_factor): 109.49039910480622 is outside [0.01, 100]"),
     (SPLASH, (("tank", "size_m"), [5, 0.16, 0.3]), "tank.size_m[0]: 5 is outside [0.02, 3]"),
     (SPLASH, (("tank", "water_level_m"), 0.3), "tank.water_level_m: 0.3 is outside (0, 0.3)"),
     (SPLASH, (("tank", "water_density_kg_m3"), 1e5), "tank.water_density_kg_m3: 100000.0 is outside [1, 5000]"),
@@ -264,9 +264,10 @@ def test_a_duplicated_object_is_refused(tmp_path):
      "priors.release_s: the low bound (0.1) must be below the high bound (0.1)"),
     (SPLASH, (("priors", "release_s"), [-5, 1]), "priors.release_s: bounds must be >= -4 s, got a low bound of -5"),
     (SPLASH, (("priors", "push_mps"), [0, 6]), "priors.push_mps: bounds must be <= 5 m/s, got a high bound of 6"),
-    (SPLASH, (("priors", "volume_factor"), [0, 2]), "priors.volume_factor: bounds must be > 0, got a low bound of 0"),
+    (SPLASH, (("priors", "log_volume_factor"), [-6, 1]),
+     "priors.log_volume_factor: bounds must be >= -5, got a low bound of -6"),
     (SPLASH, (("priors", "start_step"), [5, 30]), "priors.start_step: unknown field; expected one of area_cm2, "
-     "density_g_cm3, drag_water, release_s, push_mps, volume_factor"),
+     "density_g_cm3, drag_water, release_s, push_mps, log_volume_factor"),
 ])
 def test_priors_are_proper(tmp_path, base, change, message):
     assert_refused(tmp_path, mutated(base, change), message)
@@ -348,9 +349,9 @@ def test_scenes_built_in_code_are_validated():
     ({"release_s": math.nan}, "release_s: expected a finite number, got nan"),
     ({"release_s": "x"}, "release_s: expected a number, got 'x'"),
     ({"push_mps": -0.5}, "push_mps: -0.5 is outside [0, 5]"),
-    ({"volume_factor": 0.0}, "volume_factor: 0.0 is outside (0, 100]"),
+    ({"log_volume_factor": 5.5}, "log_volume_factor: 5.5 is outside [-5, 5]"),
     ({"start_step": 5}, "unknown name 'start_step'; expected one of area_cm2, density_g_cm3, drag_water, release_s, "
-     "push_mps, volume_factor, volume_cm3"),
+     "push_mps, log_volume_factor, volume_cm3"),
     ({"density_g_cm3": 1e308}, "density_g_cm3: 1e+308 is outside [0.001, 25]"),
     ({"volume_cm3": 0.0}, "volume_cm3: 0.0 is outside [0.01, 100]"),
     ({"drag_water": -1.0}, "drag_water: -1.0 is outside [0, 100]"),
@@ -407,7 +408,7 @@ def test_latent_limits_are_the_scene_bounds():
     assert RampScenario.noise.limits == ramp.SIGMA_LIMITS_MPS
     for name, bound in (("area_cm2", splash.AREA_CM2), ("density_g_cm3", splash.DENSITY_G_CM3),
                         ("drag_water", splash.DRAG_WATER), ("release_s", splash.RELEASE_S),
-                        ("push_mps", splash.PUSH_MPS), ("volume_factor", splash.VOLUME_FACTOR)):
+                        ("push_mps", splash.PUSH_MPS), ("log_volume_factor", splash.LOG_VOLUME_FACTOR)):
         assert splash.LATENT_SPECS[name].limits == (bound.lo, bound.hi)
 
 
@@ -434,7 +435,7 @@ SPLASH_EDGES = [
     [(("object", "density_g_cm3"), 0.001), (("object", "drag_water"), 0), (("gravity_mps2",), 5e-324)],
     [(("object", "volume_cm3"), 100), (("object", "area_cm2"), 25), (("release_m",), [0, 0, 1.2]),
      (("release_s",), -4), (("push_mps",), 5)],
-    [(("release_s",), 60), (("camera", "n_frames"), 20), (("volume_factor",), 0.0004), (("object", "area_cm2"), 0.05)],
+    [(("release_s",), 60), (("camera", "n_frames"), 20), (("log_volume_factor",), -5), (("object", "area_cm2"), 0.05)],
     [(("object", "volume_cm3"), 0.01), (("object", "area_cm2"), 0.05), (("tank", "water_density_kg_m3"), 5000)],
     [(("sim_hz",), 60), (("camera", "fps"), 60), (("tank", "water_density_kg_m3"), 1)],
 ]

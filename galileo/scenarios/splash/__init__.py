@@ -134,7 +134,7 @@ class SplashScenario(Scenario):
         if (obj == scene.obj and bounds == scene.bounds and release_s == scene.release_s
                 and push_mps == scene.push_mps):
             return scene
-        new = dataclasses.replace(scene, obj=obj, bounds=bounds, release_s=release_s, volume_factor=1.0,
+        new = dataclasses.replace(scene, obj=obj, bounds=bounds, release_s=release_s, log_volume_factor=0.0,
                                   push_mps=push_mps)
         new.validate()
         return new
@@ -157,14 +157,14 @@ class SplashScenario(Scenario):
     paper_widths = {"drag_water": (0.0005, 0.002)}
     starts_doc = ("as the seed starts them: the bottom area at which the object's dimensions are equal and "
                   "density 0.5 g/cm^3 (1.5 for an object the video shows sunk; every chain alike); the release "
-                  "time and push of a free fall fitted to the frames in the air; water drag and the volume "
-                  "factor drawn from the prior")
+                  "time and push of a free fall fitted to the frames in the air; water drag and the log "
+                  "volume factor drawn from the prior")
 
     def initial_positions(self, prepared_scene, latents, bounds, n_chains, seed):
         """The seed's start: the bottom area at which the object's dimensions are equal, density
         0.5 g/cm^3 (1.5 for an object that sank: `density_start`); the release and push of a free fall fitted
         to the frames in the air (`release_start`, the prepared scene's); water drag and the
-        volume factor drawn from the prior (each clipped into the bounds): the video hardly
+        log volume factor drawn from the prior (each clipped into the bounds): the video hardly
         measures the volume, so chains started across its prior end across it, and a short
         run's mass interval carries the volume's uncertainty (all started at the bottom-up
         volume, they stay near it)."""
@@ -199,8 +199,8 @@ class SplashScenario(Scenario):
         return Drawing(static=tuple(static), objects=(obj,), ground_z_m=None)
 
     def derived(self, scene, values) -> dict:
-        """Volume (cm^3) = the volume factor x the bottom-up volume; mass (kg) = density x volume."""
-        volume_cm3 = scene.obj.volume_cm3 * values.get("volume_factor", scene.volume_factor)
+        """Volume (cm^3) = the bottom-up volume x exp(log_volume_factor); mass (kg) = density x volume."""
+        volume_cm3 = scene.obj.volume_cm3 * math.exp(values.get("log_volume_factor", scene.log_volume_factor))
         return {"mass_kg": values["density_g_cm3"] * volume_cm3 * CM3 * 1000.0, "volume_cm3": volume_cm3}
 
     def summary(self, scene, values):
@@ -211,7 +211,7 @@ class SplashScenario(Scenario):
 
 # -- priors from the video ----------------------------------------------------------------------------
 AREA_PRIOR_FACTOR = 4.0     # the area prior U(A / 4, 4 A) around the equal-sided area A (scene.py)
-VOLUME_PRIOR_SDS = 2.0      # the volume factor's prior: exp(+-2 SD)
+VOLUME_PRIOR_SDS = 2.0      # the log volume factor's prior: U(-2 SD, 2 SD)
 RELEASE_BEFORE_FRAMES = 1.5     # the release prior: from 1.5 frames before the last frame seen held ...
 RELEASE_AFTER_FRAMES = 2.0      # ... to 2 frames after it (the first centimetre of a fall from rest takes 45 ms)
 IN_WATER_S = 0.25           # seen falling from the first frame: released at most the fall to the water + this before
@@ -221,12 +221,13 @@ def priors_from_tracks(scene, obj, found: dict, tracks) -> dict:
     """The prepared scene's bounds: the priors left at their defaults (scene.py's
     LATENT_SPECS) set from what a tracker measured (`found`: the track's bottom_up; tracks
     without these keys, as synthetic ones, keep the scene's priors): with `volume_log_sd`, the
-    area prior U(A / 4, 4 A) around the bottom-up object's equal-sided area A and the volume
-    factor's exp(+-2 sd); with `release_s` (the last frame the tracker saw the object held),
-    the release from 1.5 frames before to 2 after it, or, null (falling from the first frame
-    seen), before frame 0: by at most the time a free fall takes from the release point to the
-    water, plus IN_WATER_S (seen first in the water). Bounds given by hand are kept."""
-    from .scene import AREA_CM2, LATENT_SPECS, RELEASE_S, VOLUME_CM3, VOLUME_FACTOR
+    area prior U(A / 4, 4 A) around the bottom-up object's equal-sided area A and the log
+    volume factor's U(-2 sd, 2 sd); with `release_s` (the last frame the tracker saw the object held),
+    the release from 1.5 frames before to 2 after it, or, null (falling in the first frame it
+    is seen), before the next frame and after the first by at most the time a free fall takes
+    from the release point to the water, plus IN_WATER_S (seen first in the water). Bounds given
+    by hand are kept."""
+    from .scene import AREA_CM2, LATENT_SPECS, LOG_VOLUME_FACTOR, RELEASE_S, VOLUME_CM3
 
     bounds = dict(scene.bounds)
 
@@ -237,22 +238,24 @@ def priors_from_tracks(scene, obj, found: dict, tracks) -> dict:
     if measured and default("area_cm2"):
         a = equal_area(obj.kind, obj.volume_m3) / CM2
         bounds["area_cm2"] = (max(a / AREA_PRIOR_FACTOR, 1e-6), min(a * AREA_PRIOR_FACTOR, AREA_CM2.hi))
-    if measured and default("volume_factor"):
+    if measured and default("log_volume_factor"):
         sd = found["volume_log_sd"]
         if isinstance(sd, bool) or not isinstance(sd, (int, float)) or not math.isfinite(sd) or sd < 0:
             raise GalileoError(f"tracks: bottom_up.volume_log_sd must be a number >= 0, got {sd!r}")
         sd = max(float(sd), 0.02)
-        lo, hi = math.exp(-VOLUME_PRIOR_SDS * sd), math.exp(VOLUME_PRIOR_SDS * sd)
-        vmin, vmax = VOLUME_CM3.lo / obj.volume_cm3, VOLUME_CM3.hi / obj.volume_cm3   # the volume's own bounds
-        bounds["volume_factor"] = (max(lo, vmin, VOLUME_FACTOR.lo + 1e-9), min(hi, vmax))
+        vmin, vmax = math.log(VOLUME_CM3.lo / obj.volume_cm3), math.log(VOLUME_CM3.hi / obj.volume_cm3)  # its bounds
+        bounds["log_volume_factor"] = (max(-VOLUME_PRIOR_SDS * sd, vmin, LOG_VOLUME_FACTOR.lo),
+                                       min(VOLUME_PRIOR_SDS * sd, vmax, LOG_VOLUME_FACTOR.hi))
     if "release_s" in found and default("release_s"):
         seen = found.get("release_s")
         if seen is not None and (isinstance(seen, bool) or not isinstance(seen, (int, float))
                                  or not math.isfinite(seen)):
             raise GalileoError(f"tracks: bottom_up.release_s must be a number or null, got {seen!r}")
-        if seen is None:
+        if seen is None:   # falling in the first frame it is seen: let go before the next one
             fall_s = math.sqrt(2 * (scene.release_m[2] - scene.tank.water_level_m) / scene.gravity_mps2)
-            lo, hi = -(fall_s + IN_WATER_S), 0.0
+            o = tracks.objects[0]
+            first_s = float(np.flatnonzero(o.visible)[0]) / tracks.fps
+            lo, hi = first_s - (fall_s + IN_WATER_S), first_s + 1.0 / tracks.fps
         else:
             lo, hi = seen - RELEASE_BEFORE_FRAMES / tracks.fps, seen + RELEASE_AFTER_FRAMES / tracks.fps
         bounds["release_s"] = (max(lo, RELEASE_S.lo), min(hi, RELEASE_S.hi))

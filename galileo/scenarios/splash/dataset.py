@@ -248,7 +248,7 @@ def truth_json(scene: SplashScene, traj) -> dict:
     o = scene.obj
     latents = {"kind": o.kind, "volume_cm3": o.volume_cm3, "area_cm2": o.area_cm2,
                "density_g_cm3": o.density_g_cm3, "drag_water": o.drag_water, "release_s": scene.release_s,
-               "push_mps": scene.push_mps, "volume_factor": scene.volume_factor, "yaw_deg": scene.yaw_deg,
+               "push_mps": scene.push_mps, "log_volume_factor": scene.log_volume_factor, "yaw_deg": scene.yaw_deg,
                "mass_kg": o.mass_kg, "material": o.material}
     return {"latents": latents, "trajectory": traj.to_json()}
 

@@ -96,8 +96,8 @@ def result_record(res) -> dict:
     """What a video's `InferenceResult` contributes to its record."""
     j = res.names.index("density_g_cm3")
     final_density = res.samples[:, -1, j].astype(float)
-    factor = (res.samples[:, -1, res.names.index("volume_factor")].astype(float) if "volume_factor" in res.names
-              else np.ones_like(final_density))
+    factor = (np.exp(res.samples[:, -1, res.names.index("log_volume_factor")].astype(float))
+              if "log_volume_factor" in res.names else np.ones_like(final_density))
     final_volume_cm3 = float(res.scene.obj.volume_cm3) * factor   # the bottom-up volume x the chain's factor
     chain_mass_kg = final_density * final_volume_cm3 * CM3 * 1000.0
     diag = res.diagnostics()

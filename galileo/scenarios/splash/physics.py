@@ -314,15 +314,15 @@ class Simulator:
     def world(self) -> _World:
         return cached_world((self.scene.geometry_key(), self.visual), lambda: _World(self.scene, self.visual))
 
-    def body_of(self, area_cm2: float, volume_factor: float = 1.0) -> Body | None:
-        """The object's geometry with this bottom area and volume factor (None: no such object
+    def body_of(self, area_cm2: float, log_volume_factor: float = 0.0) -> Body | None:
+        """The object's geometry with this bottom area and log volume factor (None: no such object
         fits; cached)."""
-        key = (float(area_cm2), float(volume_factor))
+        key = (float(area_cm2), float(log_volume_factor))
         if key not in self._bodies:
             o = self.scene.obj
             if len(self._bodies) > 64:
                 self._bodies.clear()
-            self._bodies[key] = Body.of(o.kind, o.volume_m3 * key[1], key[0] * CM2, self.scene.max_dim_m())
+            self._bodies[key] = Body.of(o.kind, o.volume_m3 * math.exp(key[1]), key[0] * CM2, self.scene.max_dim_m())
         return self._bodies[key]
 
     def _place(self, body: Body, values: dict) -> int:
@@ -367,7 +367,7 @@ class Simulator:
         """A stepper over one run from the release, step by step or frame by frame, or None where
         the values' area and volume give no object that fits (see scene.dimensions)."""
         v = self.values(values)
-        body = self.body_of(v["area_cm2"], v["volume_factor"])
+        body = self.body_of(v["area_cm2"], v["log_volume_factor"])
         if body is None:
             return None
         fps = self.scene.fps

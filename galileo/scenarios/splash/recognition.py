@@ -39,8 +39,8 @@ def readouts(scene) -> tuple[Readout, ...]:
 
 def label(scene, tracks, values: dict) -> dict:
     d = values.get("density_g_cm3")
-    factor = values.get("volume_factor", scene.volume_factor)   # the inferred volume's
-    mass = None if d is None else float(d) * 1000.0 * scene.obj.volume_m3 * float(factor)
+    log_factor = values.get("log_volume_factor", scene.log_volume_factor)   # the inferred volume's
+    mass = None if d is None else float(d) * 1000.0 * scene.obj.volume_m3 * math.exp(float(log_factor))
     return {ROLE: {"mass_kg": mass, "friction": None}}
 
 

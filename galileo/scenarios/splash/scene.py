@@ -33,16 +33,18 @@ drag `drag_water` ~ U(0.001, 2) (air drag = 1e-3 x water drag), and three the se
   before frame 0 (release_s < 0) is the seed's "observation start t" (here -t / sim_hz):
   the video opens with the object already falling. A model that can only start at rest a
   few steps before frame 0 explains a held or pushed start with a weightless, draggy object.
-* `volume_factor`: the object's volume over the bottom-up estimate `object.volume_cm3` (the
+* `log_volume_factor`: the natural log of the object's volume over the bottom-up estimate
+  `object.volume_cm3` (a log, so that a prior as wide above as below the estimate has its
+  median there: a uniform prior on the factor itself puts most of its mass above it) (the
   camera sees width and height, never depth: the volume is uncertain, and with it the mass;
   the motion identifies the density and, weakly, the volume through drag and added mass).
-  mass = density x volume_factor x volume_cm3.
+  mass = density x exp(log_volume_factor) x volume_cm3.
 
 Priors left at their defaults are set from the video when tracks are prepared (the
 scenario's `prepare`): the area prior U(A/4, 4 A), A the area at which an object of the
 bottom-up volume has equal sides (the seed's U(0.1, 20) cm^2 fits neither a 100 cm^3 object,
 A = 21.5 cm^2, nor a 0.01 cm^3 bead, A = 0.046 cm^2; a factor of 4 either way spans sides in
-the ratios 1:8 to 8:1); the volume factor's from the tracker's uncertainty (exp(+-2 sd)); the
+the ratios 1:8 to 8:1); the log volume factor's from the tracker's uncertainty (+-2 sd); the
 release's a window around the release the tracker saw. Bounds set by hand are kept.
 """
 from __future__ import annotations
@@ -60,7 +62,7 @@ from ...latents import Latent, check_bounds
 from ...scenefile import SceneFile
 from ...shapes import Box, Cylinder, Shape
 
-SCENE_VERSION = 2   # 2: the release in video time (release_s, push_mps), the volume factor; version 1
+SCENE_VERSION = 2   # 2: the release in video time (release_s, push_mps), the log volume factor; version 1
 # files (start_step: frame 0 at that physics step after a release at rest) are read too
 KINDS = ("box", "vcyl", "hcyl")   # square-bottomed box, vertical cylinder, horizontal cylinder
 MIN_DIM_M = 0.002                 # no dimension below 2 mm
@@ -89,8 +91,8 @@ RELEASE_S = Bound(-4.0, 60.0)               # the release's video time: at most 
 PUSH_MPS = Bound(0.0, 5.0)                  # the downward speed at release: 0 (let go) to 5 m/s (a throw: beyond
 # it the object hits the water faster than any splash this model has)
 YAW_DEG = Bound(-180.0, 180.0)              # the object's turn about the vertical, degrees
-VOLUME_FACTOR = Bound(0.0, 100.0, lo_open=True)   # the true volume over the bottom-up one: above 0, at most 100
-# (the estimate's volume is itself checked against VOLUME_CM3)
+LOG_VOLUME_FACTOR = Bound(-5.0, 5.0)        # ln(true volume / the bottom-up one): a factor of e^5 = 148 either way
+# (the volume itself is checked against VOLUME_CM3, 0.01-100 cm^3: a factor of 10^4 at most)
 TANK_SIZE_M = Bound(0.02, 3.0)              # the tank's inner sizes: 2 cm (room for a 2 mm object) to 3 m (a
 # tank on a lab floor)
 WALL_M = Bound(0.0, 0.1, lo_open=True)      # glass walls: above 0 (Bullet needs a body), at most 10 cm
@@ -117,13 +119,13 @@ LATENT_SPECS = {
                         limits=(RELEASE_S.lo, RELEASE_S.hi), narrow=0.005, broad=0.05),
     "push_mps": Latent("push_mps", "m/s", (0.0, 0.5), "downward speed the object is let go at",
                        limits=(PUSH_MPS.lo, PUSH_MPS.hi), narrow=0.02, broad=0.1),
-    "volume_factor": Latent("volume_factor", "1", (0.6, 1.65), "volume over the bottom-up estimate",
-                            limits=(VOLUME_FACTOR.lo, VOLUME_FACTOR.hi), limits_open_low=True, narrow=0.02,
+    "log_volume_factor": Latent("log_volume_factor", "1", (-0.5, 0.5), "ln(volume / the bottom-up estimate)",
+                                limits=(LOG_VOLUME_FACTOR.lo, LOG_VOLUME_FACTOR.hi), narrow=0.02,
                             broad=0.2),
 }
 # each value `with_values` takes, with its bound
 VALUE_BOUNDS = {"area_cm2": AREA_CM2, "density_g_cm3": DENSITY_G_CM3, "drag_water": DRAG_WATER,
-                "release_s": RELEASE_S, "push_mps": PUSH_MPS, "volume_factor": VOLUME_FACTOR,
+                "release_s": RELEASE_S, "push_mps": PUSH_MPS, "log_volume_factor": LOG_VOLUME_FACTOR,
                 "volume_cm3": VOLUME_CM3}
 LATENT_NAMES = tuple(LATENT_SPECS)
 
@@ -228,7 +230,7 @@ class SplashScene(SceneFile):
     gravity_mps2: float = 9.81
     bounds: dict = field(default_factory=lambda: dict(DEFAULT_BOUNDS))
     push_mps: float = 0.0                      # downward speed at the release
-    volume_factor: float = 1.0                 # the true volume over object.volume_cm3
+    log_volume_factor: float = 0.0             # ln(the true volume / object.volume_cm3)
     yaw_deg: float = 0.0                       # the object's turn about the vertical as let go (not inferred: it
     # changes what the camera sees of it, not how it falls)
 
@@ -248,7 +250,7 @@ class SplashScene(SceneFile):
         o = self.obj
         return {"area_cm2": o.area_cm2, "density_g_cm3": o.density_g_cm3, "drag_water": o.drag_water,
                 "release_s": float(self.release_s), "push_mps": float(self.push_mps),
-                "volume_factor": float(self.volume_factor)}
+                "log_volume_factor": float(self.log_volume_factor)}
 
     def release_step(self, release_s: float | None = None) -> int:
         """The release in physics steps of video time (frame f is step f * sim_hz / fps),
@@ -268,19 +270,19 @@ class SplashScene(SceneFile):
 
     @property
     def volume_m3(self) -> float:
-        """The object's volume (m^3): the bottom-up volume times the volume factor."""
-        return self.obj.volume_m3 * self.volume_factor
+        """The object's volume (m^3): the bottom-up volume times exp(log_volume_factor)."""
+        return self.obj.volume_m3 * math.exp(self.log_volume_factor)
 
     def with_values(self, values: dict[str, float]) -> "SplashScene":
         """A copy with latents (area_cm2, density_g_cm3, drag_water, release_s, push_mps,
-        volume_factor) and the bottom-up volume set; each value checked against its bound, then
+        log_volume_factor) and the bottom-up volume set; each value checked against its bound, then
         the new scene validated as a whole."""
         obj, own = self.obj, {}
         for name, value in values.items():
             if name not in VALUE_BOUNDS:
                 raise SceneError(f"unknown name {show(name)}; expected one of {', '.join(LATENT_NAMES)}, volume_cm3")
             v = VALUE_BOUNDS[name].check(value, name)
-            if name in ("release_s", "push_mps", "volume_factor"):
+            if name in ("release_s", "push_mps", "log_volume_factor"):
                 own[name] = v
             else:
                 obj = replace(obj, **{name: v})
@@ -358,9 +360,9 @@ class SplashScene(SceneFile):
                              f"(at {t.water_level_m:g} m)")
         RELEASE_S.check(self.release_s, "release_s")
         PUSH_MPS.check(self.push_mps, "push_mps")
-        VOLUME_FACTOR.check(self.volume_factor, "volume_factor")
+        LOG_VOLUME_FACTOR.check(self.log_volume_factor, "log_volume_factor")
         YAW_DEG.check(self.yaw_deg, "yaw_deg")
-        VOLUME_CM3.check(self.obj.volume_cm3 * self.volume_factor, "object.volume_cm3 x volume_factor")
+        VOLUME_CM3.check(self.volume_m3 / CM3, "object.volume_cm3 x exp(log_volume_factor)")
         SIM_HZ.check(self.sim_hz, "sim_hz")
         GRAVITY_MPS2.check(self.gravity_mps2, "gravity_mps2")
         check_priors(self.bounds)
@@ -375,7 +377,8 @@ class SplashScene(SceneFile):
         d: dict[str, Any] = {"scenario": self.scenario, "version": SCENE_VERSION, "tank": self.tank.to_json(),
                              "object": self.obj.to_json(), "release_m": list(self.release_m),
                              "release_s": self.release_s, "push_mps": self.push_mps,
-                             "volume_factor": self.volume_factor, "yaw_deg": self.yaw_deg, "sim_hz": self.sim_hz,
+                             "log_volume_factor": self.log_volume_factor, "yaw_deg": self.yaw_deg,
+                             "sim_hz": self.sim_hz,
                              "gravity_mps2": self.gravity_mps2,
                              "priors": {k: list(v) for k, v in self.bounds.items()}}
         if self.camera is not None:
@@ -384,7 +387,7 @@ class SplashScene(SceneFile):
 
 
 
-SCENE_FIELDS = ("scenario", "version", "tank", "object", "release_m", "release_s", "push_mps", "volume_factor",
+SCENE_FIELDS = ("scenario", "version", "tank", "object", "release_m", "release_s", "push_mps", "log_volume_factor",
                 "yaw_deg", "sim_hz", "gravity_mps2", "priors", "camera")
 V1_FIELDS = ("scenario", "version", "tank", "object", "release_m", "start_step", "sim_hz", "gravity_mps2",
              "priors", "camera")
@@ -479,11 +482,11 @@ def scene_from_json(data: Any) -> SplashScene:
     sim_hz = number(data, "sim_hz", "", 240, bound=SIM_HZ)
     if version == 1:
         release_s = -number(data, "start_step", "", 10, bound=V1_START) / sim_hz
-        push, factor, yaw = 0.0, 1.0, 0.0
+        push, factor, yaw = 0.0, 0.0, 0.0
     else:
         release_s = number(data, "release_s", "", -10 / 240, bound=RELEASE_S)
         push = number(data, "push_mps", "", 0.0, bound=PUSH_MPS)
-        factor = number(data, "volume_factor", "", 1.0, bound=VOLUME_FACTOR)
+        factor = number(data, "log_volume_factor", "", 0.0, bound=LOG_VOLUME_FACTOR)
         yaw = number(data, "yaw_deg", "", 0.0, bound=YAW_DEG)
     scene = SplashScene(tank, obj, _vector3(data, "release_m", ""), release_s,
                         camera_from_json(cam) if cam is not None else None, sim_hz,
