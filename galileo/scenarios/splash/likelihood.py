@@ -15,7 +15,8 @@ sigma_x = sigma_px * m_per_px and sigma_v = sigma_px * m_per_px * fps, where m_p
 size of a pixel at the release point's depth (depth / focal length). `sigma_px` = 1.
 
 The likelihood stands on `galileo.framelik.FrameLikelihood`, with a tick of one physics step
-(the release shifts which steps the frames show; frames before it are its `before_start`). Its rest rule (as the ramp's) is
+(the release shifts which steps the frames show; frames before it are its `before_start`;
+frames between two steps are interpolated, `at_frame`). Its rest rule (as the ramp's) is
 checked on the simulation's own frames (every spf steps from the release, whatever t): once,
 for two consecutive such frames, the object moves slower than REST_MPS, turns slower than
 REST_RADPS and is not speeding up, later steps hold its last position at zero velocity. A

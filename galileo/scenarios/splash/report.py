@@ -67,8 +67,8 @@ def _mass_section(records: list[dict], summary: dict, fig_dir: Path) -> Section:
         f"videos ({summary['agreement_rule']}). Converged ({summary['converged_rule']}): {summary['converged']} of "
         f"{summary['predicted']}.",
         "A predicted mass is the posterior median of density x volume (the bottom-up volume times the inferred "
-        "volume factor) over all chains' kept draws; bars span its interquartile range. On the dashed diagonal the prediction is exact; hollow points are videos whose "
-        "chains disagree, left out of the seed's correlation."])
+        "volume factor) over all chains' kept draws; bars span its interquartile range. On the dashed diagonal the "
+        "prediction is exact; hollow points are videos whose chains disagree, left out of the seed's correlation."])
     return Section(title, PAPER["mass"], png, body, mc)
 
 

@@ -42,8 +42,8 @@
    outline pixels, so the kinds are often nearly equally probable, and said so). `kind`: the
    most probable; `volume_cm3`: its median per-frame volume; `volume_log_sd`: the depth
    assumption's, the frames' spread, a pixel on each size and the other kinds' volumes
-   weighed by their probabilities, added in quadrature (the volume factor's prior in
-   inference is exp(+-2 sd) around it). The first BOTTOM_UP_FRAMES silhouettes give the
+   weighed by their probabilities, added in quadrature (inference's prior on the log of the
+   volume over it is U(-2 sd, 2 sd)). The first BOTTOM_UP_FRAMES silhouettes give the
    shape the tracker centres silhouettes on (`first_guess`).
 6. The release (`_release`): the last frame at which the object's centre is within HOLD_PX
    of where it was first seen (`release_s`: its time; `held_frames`); null where it moves
