@@ -144,6 +144,7 @@ class SplashLikelihood(FrameLikelihood):
         pose = (tuple(float(x) for x in scene.release_m), scene.release_orientation())
         # before the release: held still at the release point, as placed (one body's twist)
         self._held = ((((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)),),) + pose + ((pose[0], pose[1], _ZERO, _ZERO),)
+        self._ticks = (math.nan, 0.0)   # (release_s, a) of the last `at_frame`
 
     def start(self, values: dict) -> _Run | None:
         stepper = self.sim.frames(values)
@@ -167,7 +168,10 @@ class SplashLikelihood(FrameLikelihood):
         """The frame's state: a fraction a of a step before the tick's (`scene.frame_ticks`),
         linear between the two ticks around it (`physics.between`); before the release (tick 0
         with a > 0), held still."""
-        a = self.scene.frame_ticks(values["release_s"])[1]
+        release_s = values["release_s"]
+        if release_s != self._ticks[0]:   # once an evaluation, not once a frame
+            self._ticks = (release_s, self.scene.frame_ticks(release_s)[1])
+        a = self._ticks[1]
         if a == 0.0:
             return state
         if state[3] is None:

@@ -83,7 +83,6 @@ class Body:
     tris: np.ndarray                  # (T, 3, 3) triangles, object frame, outward
     volume_scale: float               # nominal volume / mesh volume
     volume_m3: float
-    half_extents: tuple               # box: half sizes; cylinder: (half length, radius)
     r_m: float                        # half the largest dimension
     mean_area_m2: float
     inertia_per_kg: np.ndarray        # principal moments (kg m^2 per kg), object axes: a solid body's
@@ -100,16 +99,14 @@ class Body:
         unit_tris, unit_volume, unit_points = _unit_mesh(type(shape))   # the unit shape's mesh, stretched
         tris = np.ascontiguousarray(unit_tris * np.array([sx, sy, sz]))
         if isinstance(shape, Box):
-            half = (sx / 2, sy / 2, sz / 2)
             mean_area = (sy * sz + sx * sz + sx * sy) / 2.0   # Cauchy: mean projection = surface / 4
             inertia = np.array([sy * sy + sz * sz, sx * sx + sz * sz, sx * sx + sy * sy]) / 12.0
         else:
             length, diam = sx, sy
-            half = (length / 2, diam / 2)
             mean_area = (2 * math.pi * (diam / 2) ** 2 + math.pi * diam * length) / 4.0
             r2 = (diam / 2) ** 2
             inertia = np.array([r2 / 2, (3 * r2 + length * length) / 12, (3 * r2 + length * length) / 12])
-        return cls(kind, dims, shape, orn0, tris, volume_m3 / (unit_volume * sx * sy * sz), volume_m3, half,
+        return cls(kind, dims, shape, orn0, tris, volume_m3 / (unit_volume * sx * sy * sz), volume_m3,
                    max(dims) / 2, mean_area, inertia, isinstance(shape, Box), unit_points * np.array([sx, sy, sz]))
 
 
