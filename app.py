@@ -318,6 +318,8 @@ def new_session(args, video_path, scene_path, name: str, model=None, say=print):
     for v, s in zip(videos, scenes):
         say(f"tracking {v} ...")
         tracks.append(registry.of(s).track(v, s))
+        for note in tracks[-1].notes:   # (why an answer may be uncertain: the camera moved, a distractor, ...)
+            say(f"note: {note}")
     session = new_session_dir(SESSIONS, name)
     lock = SessionLock(session)
     for i, v in enumerate(videos):

@@ -7,9 +7,11 @@ Without --video it renders the demo preset into a temporary folder first. "Bare"
 same decode (PyAV, yuv420p planes), the two MOG2 passes (backwards over the last third
 at half resolution, forwards over all frames at quarter resolution) and the
 forward-backward pyramidal Lucas-Kanade on the same number of points per object per
-frame (all objects' points in one call per direction, as the tracker does), with nothing
-else: no detection, recognition, pose fitting or bookkeeping.
-Target: >= 300 frames per second end to end at 640x480.
+frame (all objects' points in one call per direction, as the tracker does), and the
+stabiliser's calls once per frame (`bench_stabilise.bare_calls`, on its full 300 features), with
+nothing else: no detection, recognition, pose fitting or bookkeeping.
+Targets: >= 300 frames per second end to end at 640x480 (before stabilisation, issue 29); the tracker
+at >= 0.5x the bare calls it makes, stabilisation included (issue 29).
 """
 from __future__ import annotations
 
@@ -30,6 +32,10 @@ from galileo.scenarios.ramp.scene import Scene  # noqa: E402
 from galileo.scenarios.ramp.tracking import track  # noqa: E402
 from galileo.vision.background import MOG_SCALE  # noqa: E402
 from galileo.video import read_video_yuv  # noqa: E402
+from galileo.vision import stabilise  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_stabilise import bare_calls  # noqa: E402
 
 
 def bare(video: Path, n_points: list[int]) -> float:
@@ -51,7 +57,10 @@ def bare(video: Path, n_points: list[int]) -> float:
     for f in range(1, len(y)):
         q, _, _ = cv2.calcOpticalFlowPyrLK(y[f - 1], y[f], p, None, **lk)
         cv2.calcOpticalFlowPyrLK(y[f], y[f - 1], q, None, **lk)
-    return time.perf_counter() - t0
+    elapsed = time.perf_counter() - t0
+    # the stabiliser's (once: its first pass fits, later passes replay the fits)
+    frames = list(zip(y, uv))
+    return elapsed + bare_calls(y[0], frames[1:], [stabilise.FEATURES_MAX] * (len(frames) - 1))()
 
 
 def main() -> int:
@@ -90,9 +99,9 @@ def main() -> int:
     else:
         print(f"video: {n_frames} frames {scene.camera.width_px}x{scene.camera.height_px}, "
               f"features per object {n_points}, median of {args.repeats}")
-        print(f"track (end to end) : {end_fps:7.1f} frames/s  (target >= 300)")
+        print(f"track (end to end) : {end_fps:7.1f} frames/s")
         print(f"bare OpenCV calls  : {bare_fps:7.1f} frames/s")
-        print(f"ratio              : {end_fps / bare_fps:7.3f}")
+        print(f"ratio              : {end_fps / bare_fps:7.3f}  (target >= 0.5)")
     return 0
 
 

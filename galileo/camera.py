@@ -1,6 +1,18 @@
-"""The pinhole camera of a video (OpenCV convention: x right, y down, z forward), shared by
-every scenario: projection, back-projection, JSON, whether it sees a scene, and the physics
-rate its frame rate steps evenly."""
+"""The camera of a video (OpenCV convention: x right, y down, z forward), shared by every
+scenario: projection, back-projection, JSON, whether it sees a scene, and the physics rate its
+frame rate steps evenly.
+
+**Lens distortion.** A pinhole camera, optionally with one radial distortion coefficient k1
+(OpenCV's model with k2 = p1 = p2 = k3 = 0): a point at normalised pinhole coordinates
+(x_u, y_u) = K^-1 (u, v, 1) is seen at (x_u, y_u) (1 + k1 r_u^2), r_u^2 = x_u^2 + y_u^2.
+k1 < 0 is barrel distortion (a phone's or webcam's wide lens: straight lines near the frame's
+edges bow outwards), k1 > 0 pincushion. For k1 < 0 the polynomial turns back beyond
+r_u^2 = -1 / (3 k1); there the factor is held at its value at that radius, so points far
+outside the view stay outside the image instead of folding back into it (OpenCV folds them).
+`check_camera` refuses a k1 whose model turns back (or nearly) inside the image. Every
+conversion between pixels and the world goes through `Camera.project` (distorted pixels),
+`Camera.pixel_rays` and `backproject_to_plane` (which undistort first); renders are pinhole
+(`galileo.render`) and are remapped through `Camera.undistort_px` where a lens is wanted."""
 from __future__ import annotations
 
 import math
@@ -15,28 +27,83 @@ from .fields import Bound, matrix, number, show, unknown_fields
 
 @dataclass(frozen=True)
 class Camera:
-    """Pinhole camera, OpenCV convention (x right, y down, z forward)."""
+    """Pinhole camera, OpenCV convention (x right, y down, z forward), with radial lens
+    distortion k1 (0: none; see the module)."""
     K: np.ndarray               # (3, 3) intrinsics in pixels
     world_to_camera: np.ndarray  # (4, 4) rigid transform
     width_px: int = 640
     height_px: int = 480
     fps: float = 30.0
     n_frames: int = 90
+    k1: float = 0.0             # radial lens distortion (OpenCV's k1) on normalised coordinates
 
     def __eq__(self, other: object) -> bool:
         # the generated __eq__ compares the arrays with `==` and raises on their truth value
         if not isinstance(other, Camera):
             return NotImplemented
         return (np.array_equal(self.K, other.K) and np.array_equal(self.world_to_camera, other.world_to_camera)
-                and (self.width_px, self.height_px, self.fps, self.n_frames)
-                == (other.width_px, other.height_px, other.fps, other.n_frames))
+                and (self.width_px, self.height_px, self.fps, self.n_frames, self.k1)
+                == (other.width_px, other.height_px, other.fps, other.n_frames, other.k1))
 
     def project(self, pos_in_world: np.ndarray) -> np.ndarray:
-        """World points (..., 3) -> pixel coordinates (..., 2)."""
+        """World points (..., 3) -> pixel coordinates (..., 2), through the lens (`distort_px`)."""
         p = np.asarray(pos_in_world, float)
         pc = p @ self.world_to_camera[:3, :3].T + self.world_to_camera[:3, 3]
         uv = pc @ self.K.T
-        return uv[..., :2] / uv[..., 2:3]
+        return self.distort_px(uv[..., :2] / uv[..., 2:3])
+
+    def _radius2(self, uv: np.ndarray) -> np.ndarray:
+        """Squared radius (...) of pixels (..., 2) in normalised coordinates (K^-1, skew included)."""
+        (fx, s, cx), (_, fy, cy), _ = self.K
+        y = (uv[..., 1] - cy) / fy
+        x = (uv[..., 0] - cx - s * y) / fx
+        return x * x + y * y
+
+    def _fold_r2(self) -> float:
+        """The squared normalised radius beyond which the factor is held (see the module): where
+        r (1 + k1 r^2) turns back for k1 < 0, infinite otherwise."""
+        return -1.0 / (3.0 * self.k1) if self.k1 < 0 else math.inf
+
+    def distort_px(self, uv_pinhole: np.ndarray) -> np.ndarray:
+        """Pixels (..., 2) of a pinhole camera with this K -> where the lens puts them: scaled
+        about the principal point by 1 + k1 r_u^2 (the same scaling of normalised coordinates,
+        K being linear about it). The pixels themselves, unchanged, where k1 = 0."""
+        uv = np.asarray(uv_pinhole, float)
+        if self.k1 == 0.0:
+            return uv
+        c = self.K[:2, 2]
+        r2 = np.minimum(self._radius2(uv), self._fold_r2())
+        return c + (uv - c) * (1.0 + self.k1 * r2)[..., None]
+
+    def undistort_px(self, uv: np.ndarray) -> np.ndarray:
+        """The lens's pixels (..., 2) -> where a pinhole camera with this K sees them (the
+        inverse of `distort_px`): the normalised radius r_u solving r_u (1 + k1 r_u^2) = r_d by
+        Newton's method from r_u = r_d, which approaches the root from one side without
+        overshooting (r (1 + k1 r^2) is concave for k1 < 0, convex for k1 > 0), to
+        UNDISTORT_TOL. Unchanged where k1 = 0."""
+        uv = np.asarray(uv, float)
+        if self.k1 == 0.0:
+            return uv
+        k1, fold2 = self.k1, self._fold_r2()
+        rd = np.sqrt(self._radius2(uv))
+        # beyond the image of the fold the factor is held at its value there (1 + k1 fold2 = 2 / 3)
+        held = rd >= math.sqrt(fold2) * (1.0 + k1 * fold2) if k1 < 0 else np.zeros(rd.shape, bool)
+        ru = np.where(held, rd / (1.0 + k1 * fold2), rd)
+        for _ in range(UNDISTORT_ITERATIONS):
+            step = np.where(held, 0.0, (ru * (1.0 + k1 * ru * ru) - rd) / (1.0 + 3.0 * k1 * ru * ru))
+            ru = ru - step
+            if not np.abs(step).max(initial=0.0) > UNDISTORT_TOL:
+                break
+        c = self.K[:2, 2]
+        scale = np.where(rd > 0, ru / np.where(rd > 0, rd, 1.0), 1.0)
+        return c + (uv - c) * scale[..., None]
+
+    def pixel_rays(self, uv: np.ndarray) -> np.ndarray:
+        """Directions (N, 3), world frame, of the rays from the camera's centre
+        (`position_in_world`) through pixels uv (N, 2), undistorted first: R^T K^-1 (u, v, 1),
+        each with unit depth along the optical axis (not unit length)."""
+        uv = self.undistort_px(np.asarray(uv, float).reshape(-1, 2))
+        return np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(self.K).T @ self.world_to_camera[:3, :3]
 
     @property
     def position_in_world(self) -> np.ndarray:
@@ -44,9 +111,14 @@ class Camera:
         return -r.T @ t
 
     def to_json(self) -> dict:
-        return {"K": self.K.tolist(), "world_to_camera": self.world_to_camera.tolist(),
-                "width_px": self.width_px, "height_px": self.height_px,
-                "fps": self.fps, "n_frames": self.n_frames}
+        """The scene file's `camera` object; "k1" only where there is distortion (files of
+        pinhole cameras stay as they were)."""
+        d = {"K": self.K.tolist(), "world_to_camera": self.world_to_camera.tolist(),
+             "width_px": self.width_px, "height_px": self.height_px,
+             "fps": self.fps, "n_frames": self.n_frames}
+        if self.k1 != 0.0:
+            d["k1"] = self.k1
+        return d
 
 
 def look_at_camera(eye: Iterable[float], target: Iterable[float], *, focal_px: float = 560.0,
@@ -69,12 +141,10 @@ def look_at_camera(eye: Iterable[float], target: Iterable[float], *, focal_px: f
 
 
 def backproject_to_plane(cam: Camera, uv: np.ndarray, y_plane_m: float) -> np.ndarray:
-    """Pixels (N, 2) -> world points (N, 3) on the plane y = y_plane_m."""
-    uv = np.asarray(uv, float).reshape(-1, 2)
-    r, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
-    rays_cam = np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(cam.K).T
-    rays = rays_cam @ r                 # directions in world (R^T d)
-    origin = -r.T @ t
+    """Pixels (N, 2) -> world points (N, 3) on the plane y = y_plane_m (through the lens:
+    `Camera.pixel_rays`)."""
+    rays = cam.pixel_rays(uv)
+    origin = cam.position_in_world
     s = (y_plane_m - origin[1]) / rays[:, 1]
     return origin + s[:, None] * rays
 
@@ -98,7 +168,15 @@ PRINCIPAL_POINT_MARGIN = 0.5                     # the principal point lies in t
 ROTATION_TOL = 1e-6                              # R R^T = I and det R = +1 within this (what 7 printed digits keep)
 CAMERA_DISTANCE_M = 1000.0                       # the camera at most 1 km from the world's origin: a tabletop
 # experiment is filmed from metres away (from 1 km a 10 cm object is 10 px even at the longest focal length)
-CAMERA_FIELDS = ("K", "world_to_camera", "width_px", "height_px", "fps", "n_frames")
+K1 = Bound(-1.0, 1.0)                            # radial distortion k1: phones and webcams calibrate to
+# |k1| < 0.5 (OpenCV's samples: -0.2 to -0.4); beyond 1 the one-coefficient model is no lens (it turns back
+# inside any usual field of view)
+MIN_DISTORTION_SLOPE = 0.2                       # d r_d / d r_u at least this out to the image's corners: where
+# the lens's radius stops growing with the ray's, a pixel holds ever more rays and undistortion's error grows
+# as 1 / slope (0 is the fold, beyond which two rays share a pixel)
+UNDISTORT_ITERATIONS = 50                        # Newton steps at most (a few reach UNDISTORT_TOL inside the image)
+UNDISTORT_TOL = 1e-12                            # normalised radius: 1e-7 px at the largest focal length (FOCAL_PX)
+CAMERA_FIELDS = ("K", "world_to_camera", "width_px", "height_px", "fps", "n_frames", "k1")
 
 
 def _entry(bound: Bound, v: float, where: str, what: str) -> None:
@@ -110,7 +188,9 @@ def check_camera(cam: Camera, path: str = "camera") -> None:
     """SceneError naming the field if `cam` is no proper pinhole camera: K an intrinsic matrix
     (fx, fy in FOCAL_PX, skew small, K[1][0] = 0, last row [0, 0, 1], principal point in or near
     the image), world_to_camera a rigid transform (R orthonormal with det +1, last row
-    [0, 0, 0, 1], the camera within CAMERA_DISTANCE_M), image size, fps and n_frames in range."""
+    [0, 0, 0, 1], the camera within CAMERA_DISTANCE_M), image size, fps and n_frames in range,
+    k1 in K1 with its model increasing (slope at least MIN_DISTORTION_SLOPE) out to the
+    image's corners."""
     w = IMAGE_SIDE_PX.check(cam.width_px, f"{path}.width_px")
     h = IMAGE_SIDE_PX.check(cam.height_px, f"{path}.height_px")
     FPS.check(cam.fps, f"{path}.fps")
@@ -146,6 +226,25 @@ def check_camera(cam: Camera, path: str = "camera") -> None:
     if dist > CAMERA_DISTANCE_M:
         raise SceneError(f"{path}.world_to_camera: the camera is {dist:g} m from the world's origin, beyond "
                          f"{CAMERA_DISTANCE_M:g} m")
+    check_distortion(cam, f"{path}.k1")
+
+
+def check_distortion(cam: Camera, name: str = "camera.k1") -> None:
+    """SceneError naming `name` (the field or flag that gave k1) unless k1 is in K1 and the lens's radius r_d = r_u (1 + k1
+    r_u^2) grows with the ray's at a slope of at least MIN_DISTORTION_SLOPE out to the image's
+    farthest corner: for k1 < 0 the slope 1 + 3 k1 r_u^2 falls to it at r_u^2 = (1 - slope) /
+    (-3 k1), where r_d = r_u (2 + slope) / 3; the corner's r_d must be within that."""
+    K1.check(cam.k1, name)
+    if cam.k1 >= 0:
+        return
+    corners = np.array([[0.0, 0.0], [cam.width_px, 0.0], [0.0, cam.height_px], [cam.width_px, cam.height_px]])
+    corner_rd = float(np.sqrt(cam._radius2(corners).max()))
+    ru = math.sqrt((1.0 - MIN_DISTORTION_SLOPE) / (-3.0 * cam.k1))
+    if corner_rd > ru * (2.0 + MIN_DISTORTION_SLOPE) / 3.0:
+        raise SceneError(f"{name}: {show(cam.k1)} bends the image back on itself before its corners (the "
+                         f"lens's radius must grow with the ray's out to the corners, here {corner_rd:.3g} focal "
+                         f"lengths from the principal point; barrel distortion this strong is beyond the "
+                         f"one-coefficient model): check its sign and that it is OpenCV's k1 for this K")
 
 
 def camera_from_json(d: dict, path: str = "camera") -> Camera:
@@ -157,7 +256,8 @@ def camera_from_json(d: dict, path: str = "camera") -> Camera:
     k = matrix(d, "K", p, (3, 3))
     m = matrix(d, "world_to_camera", p, (4, 4))
     cam = Camera(k, m, number(d, "width_px", p, bound=IMAGE_SIDE_PX), number(d, "height_px", p, bound=IMAGE_SIDE_PX),
-                 number(d, "fps", p, bound=FPS), number(d, "n_frames", p, bound=N_FRAMES))
+                 number(d, "fps", p, bound=FPS), number(d, "n_frames", p, bound=N_FRAMES),
+                 number(d, "k1", p, 0.0, bound=K1))
     check_camera(cam, p)
     return cam
 
@@ -228,7 +328,7 @@ def check_sees(cam: Camera, parts: dict[str, np.ndarray]) -> None:
         pc = pc[pc[:, 2] > 0]          # (behind the camera or level with it: nowhere in the image)
         if len(pc):
             uvw = pc @ cam.K.T
-            uv = uvw[:, :2] / uvw[:, 2:]
+            uv = cam.distort_px(uvw[:, :2] / uvw[:, 2:])
             if (uv.max(axis=0) >= 0).all() and uv[:, 0].min() < cam.width_px and uv[:, 1].min() < cam.height_px:
                 return
     pos, ahead = cam.position_in_world, r[2]

@@ -310,7 +310,8 @@ def cmd_dataset(args: argparse.Namespace) -> int:
     if spec is None:
         raise GalileoError(f"the {args.scenario} scenario renders no datasets; these do: "
                            f"{', '.join(registry.with_capability('dataset'))}")
-    entries = build(spec, args.preset, args.out, seed=args.seed, workers=args.workers, progress=not args.quiet)
+    entries = build(spec, args.preset, args.out, seed=args.seed, workers=args.workers, progress=not args.quiet,
+                    camera=args.camera)
     print(f"wrote {len(entries)} video(s) to {args.out} (index: {Path(args.out) / 'index.json'})")
     return 0
 
@@ -899,6 +900,11 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", required=True, type=out_dir, help="output folder")
     d.add_argument("--seed", type=seed_int, default=0)
     d.add_argument("--workers", type=workers_int, default=None, help="render processes (default: all cores)")
+    d.add_argument("--camera", default="clean", metavar="NAME",
+                   help="film the videos through a real camera's effects (ramp, splash): clean (default), phone, "
+                        "webcam, handheld, or one effect (noise, h264, exposure, flicker, whitebalance, shake, blur, "
+                        "lens, vignette, shadow, person, hand), optionally at a level in [0, 1] (shake:0.5); the "
+                        "truth is the clean video's")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=cmd_dataset)
 

@@ -16,9 +16,16 @@ where it cannot):
 * `draw_overlay(frame, scene, clicks)`: the scene projected over the frame, to check by eye;
 * `describe(scene, numbers)`: one line of what was solved, estimated and found.
 
+Every calibration takes the lens's distortion (`DISTORTION`, `--distortion`: OpenCV's k1, 0
+for none; see `galileo.camera`): the clicks are where the lens put the points, so the solvers
+undistort them (`pinhole_clicks`) before they fit a pinhole camera, estimating the focal length
+again from clicks undistorted with the last estimate (`focal_through_lens`), and the camera
+they write carries the k1.
+
 Shared here: the checks every set of clicks gets, the corners of a quadrilateral in order
 (`check_quad`), the camera from points on a plane of known shape (`camera_from_plane`: the
-focal length from the plane's homography unless given, the pose by planar PnP), drawing, and
+focal length from the plane's homography unless given, the pose by planar PnP), the clicks
+through the lens (`pinhole_clicks`, `focal_through_lens`), drawing, and
 the frames a solver looks for the objects in (`sample_video`).
 """
 from __future__ import annotations
@@ -31,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from .camera import K1
 from .errors import GalileoError
 from .fields import Bound, show
 
@@ -45,6 +53,8 @@ MAX_FOCAL_SPREAD_PER_PX = 0.2   # a focal length that one pixel of error in the 
 SAMPLE_MAX_FRAMES = 60       # the solvers look for objects in at most this many frames: the first two, then
 SAMPLE_MAX_SIDE_PX = 640     # ... evenly spaced over the video, at most this many pixels on their long side
 SAMPLE_FIRST = 2             # the video's first frames always kept (the object's speed at the start)
+FOCAL_ROUNDS = 20            # through a lens, the focal length is estimated again at most this many times ...
+FOCAL_ROUNDS_TOL = 1e-9      # ... until it moves by less than this fraction (a few rounds for |k1| < 0.3)
 CLICK_RGB = (230, 30, 30)
 
 
@@ -121,6 +131,12 @@ class Field:
                 raise GalileoError(f"{self.flag}: {typed} is outside {self.bound}")
             nums.append(v)
         return nums[0] if self.size == 1 else tuple(nums)
+
+
+DISTORTION = Field("distortion", "Lens distortion k1", "", 0.0, "the lens's radial distortion: OpenCV's k1 for "
+                   "the video's resolution (calibrated, or from the camera's specification); negative for barrel "
+                   "distortion (straight lines near the frame's edges bow outwards: phones, webcams), 0 for none",
+                   K1)   # every calibration has it (in each scenario's FIELDS after focal_px)
 
 
 NAME_ID = re.compile(r"^[a-z][a-z0-9]{0,23}$")   # a name that goes into latent names (m_<object>_kg)
@@ -312,14 +328,51 @@ def focal_spread_per_px(plane_xy: np.ndarray, uv: np.ndarray, cx: float, cy: flo
     return float(np.sqrt(np.sum(np.square(grads)))) / f
 
 
+def centred_intrinsics(focal_px: float, width_px: int, height_px: int) -> np.ndarray:
+    """K of square pixels with the principal point at the image's centre (what the solvers assume)."""
+    return np.array([[focal_px, 0.0, width_px / 2], [0.0, focal_px, height_px / 2], [0.0, 0.0, 1.0]])
+
+
+def pinhole_clicks(uv: np.ndarray, video_info, focal_px: float, k1: float) -> np.ndarray:
+    """Where a pinhole camera of this focal length (`centred_intrinsics`) sees the clicked
+    points that a lens of distortion k1 put at `uv` (`Camera.undistort_px`); `uv` itself for
+    k1 = 0. A GalileoError naming --distortion where the lens folds inside the image."""
+    from .camera import Camera, check_distortion
+
+    if k1 == 0.0:
+        return uv
+    w, h = int(video_info.width_px), int(video_info.height_px)
+    cam = Camera(centred_intrinsics(focal_px, w, h), np.eye(4), w, h, k1=float(k1))
+    check_distortion(cam, f"--distortion (with a focal length of {focal_px:.0f} px)")
+    return cam.undistort_px(uv)
+
+
+def focal_through_lens(estimate: Callable[[np.ndarray], float | None], uv: np.ndarray, video_info,
+                       k1: float) -> float | None:
+    """`estimate(clicks)`'s focal length (pixels; None: none) for clicks seen through a lens of
+    distortion k1: undistorting them needs the focal length (k1 acts on normalised
+    coordinates), so it is estimated from the clicks as they are, then again from the clicks
+    undistorted with the last estimate (`pinhole_clicks`) until it moves by less than
+    FOCAL_ROUNDS_TOL (at most FOCAL_ROUNDS rounds). Just `estimate(uv)` for k1 = 0."""
+    f = estimate(uv)
+    for _ in range(FOCAL_ROUNDS if k1 else 0):
+        if f is None:
+            break
+        last, f = f, estimate(pinhole_clicks(uv, video_info, f, k1))
+        if f is not None and abs(f - last) <= FOCAL_ROUNDS_TOL * last:
+            break
+    return f
+
+
 def camera_from_plane(uv: np.ndarray, points_in_world: np.ndarray, video_info, *, facing: np.ndarray,
-                      focal_px: float | None, what: str):
-    """The camera that sees the coplanar world points at the clicks: the focal length from
-    the plane's homography where not given (principal point at the image centre, square
-    pixels; refused where the plane is seen so nearly face-on that a pixel's error moves it by
-    more than MAX_FOCAL_SPREAD_PER_PX), the pose by OpenCV's planar PnP (IPPE). The camera
-    must see the points in front of it, on the side of the plane `facing` points to (a
-    mirrored order puts it behind)."""
+                      focal_px: float | None, what: str, k1: float = 0.0):
+    """The camera that sees the coplanar world points at the clicks through a lens of
+    distortion k1: the focal length from the plane's homography where not given (principal
+    point at the image centre, square pixels; through the lens `focal_through_lens`; refused
+    where the plane is seen so nearly face-on that a pixel's error moves it by more than
+    MAX_FOCAL_SPREAD_PER_PX), the pose by OpenCV's planar PnP (IPPE) on the undistorted
+    clicks. The camera must see the points in front of it, on the side of the plane `facing`
+    points to (a mirrored order puts it behind)."""
     import cv2
 
     from .camera import Camera
@@ -329,23 +382,28 @@ def camera_from_plane(uv: np.ndarray, points_in_world: np.ndarray, video_info, *
     world = np.asarray(points_in_world, float)
     if focal_px is None:
         plane = _plane_coordinates(world)
-        hom, _ = cv2.findHomography(plane, uv)
-        if hom is None:
-            raise GalileoError(f"these points give no perspective view of {what}: check their order")
-        focal_px = focal_from_homography(hom, cx, cy, what)
-        spread = focal_spread_per_px(plane, uv, cx, cy, what)
+
+        def estimate(clicks: np.ndarray) -> float:
+            hom, _ = cv2.findHomography(plane, clicks)
+            if hom is None:
+                raise GalileoError(f"these points give no perspective view of {what}: check their order")
+            return focal_from_homography(hom, cx, cy, what)
+
+        focal_px = focal_through_lens(estimate, uv, video_info, k1)
+        spread = focal_spread_per_px(plane, pinhole_clicks(uv, video_info, focal_px, k1), cx, cy, what)
         if spread > MAX_FOCAL_SPREAD_PER_PX:
             raise GalileoError(f"these points do not fix the focal length: a pixel's error in them moves it by "
                                f"{_percent(spread)} ({what} is seen too nearly face-on, or the points are off): give "
                                "--focal-px, or click them again more exactly")
-    k = np.array([[focal_px, 0, cx], [0, focal_px, cy], [0, 0, 1.0]])
-    ok, rvec, tvec = cv2.solvePnP(world, uv, k, None, flags=cv2.SOLVEPNP_IPPE)
+    k = centred_intrinsics(focal_px, w, h)
+    ok, rvec, tvec = cv2.solvePnP(world, pinhole_clicks(uv, video_info, focal_px, k1), k, None,
+                                  flags=cv2.SOLVEPNP_IPPE)
     if not ok:
         raise GalileoError("no camera pose fits these points")
     r, _ = cv2.Rodrigues(rvec)
     m = np.eye(4)
     m[:3, :3], m[:3, 3] = r, tvec.ravel()
-    cam = Camera(k, m, int(w), int(h), float(video_info.fps), int(video_info.n_frames))
+    cam = Camera(k, m, int(w), int(h), float(video_info.fps), int(video_info.n_frames), float(k1))
     if not ((world @ r.T + tvec.ravel())[:, 2].min() > 0
             and (cam.position_in_world - world.mean(axis=0)) @ np.asarray(facing, float) > 0):
         raise GalileoError(f"the fitted camera sees {what} from behind: check the points' order")

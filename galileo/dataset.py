@@ -5,6 +5,9 @@ presets, `plan(preset, seed)` (the videos, each a picklable spec with a `.name`,
 per seed) and `render_one(video, out_dir)` (writes the folder out_dir/<name> - its `files`:
 video.mp4, scene.json, truth.json - and returns the video's index entry). `build` renders a
 preset on a process pool and writes out/index.json, atomically, when every video is there.
+A scenario whose renderer films through a real camera's effects (`galileo.footage`, `cameras`)
+plans with the camera's name, `plan(preset, seed, camera)`, each video's spec carrying it;
+index.json names the camera ("camera", "clean" when there are none).
 
 Resumable: after each video, `RECORD` in the output folder notes the video's plan (a digest
 of the scenario and the video's spec), its index entry and the SHA-256 of each of its files.
@@ -38,13 +41,14 @@ class DatasetSpec:
     """A scenario's rendered dataset."""
     scenario: str                                   # its registry name: progress, and the index's "scenario"
     presets: tuple[str, ...]                        # e.g. ("demo", "small", "full")
-    plan: Callable[[str, int], Sequence[Any]]       # (preset, seed) -> picklable video specs, each with a .name
-                                                    # and a repr that says all that makes the video
+    plan: Callable[..., Sequence[Any]]              # (preset, seed[, camera]) -> picklable video specs, each with
+                                                    # a .name and a repr that says all that makes the video
     render_one: Callable[[Any, str], dict]          # (video spec, out_dir) -> that video's index entry
     describe: str = ""                              # one line for `galileo scenarios`
     files: tuple[str, ...] = ("video.mp4", "scene.json", "truth.json")   # what render_one writes in out_dir/<name>
     index_names_scenario: bool = True               # False: the index has no "scenario" (the ramp's, from
                                                     # before there were two; readers default to the ramp)
+    cameras: bool = False                           # plan takes a camera (galileo.footage's names: --camera)
 
 
 def _digest(path: Path) -> str:
@@ -119,12 +123,22 @@ def _render_on_pool(spec: DatasetSpec, todo: list, out_dir: str, n_workers: int,
 
 
 def build(spec: DatasetSpec, preset: str, out: str | Path, seed: int = 0, workers: int | None = None,
-          progress: bool = True) -> list[dict]:
-    """Render `spec`'s `preset` into `out`, keeping the videos a same build there finished; the
-    index entries in plan order (also written to out/index.json)."""
+          progress: bool = True, camera: str = "clean") -> list[dict]:
+    """Render `spec`'s `preset` into `out`, filmed through `camera` (`galileo.footage`'s names),
+    keeping the videos a same build there finished; the index entries in plan order (also
+    written to out/index.json)."""
+    from .footage import CameraEffects, effects_from_name
+
     if preset not in spec.presets:
         raise GalileoError(f"unknown {spec.scenario} dataset preset {preset!r}; expected one of {', '.join(spec.presets)}")
-    videos = list(spec.plan(preset, seed))
+    plain = effects_from_name(camera) == CameraEffects()
+    if not spec.cameras and not plain:
+        from . import registry
+
+        filmed = [n for n in registry.with_capability("dataset") if registry.get(n).dataset.cameras]
+        raise GalileoError(f"the {spec.scenario} scenario renders clean videos only, not --camera {camera}; "
+                           f"these render camera effects: {', '.join(filmed)}")
+    videos = list(spec.plan(preset, seed, camera) if spec.cameras else spec.plan(preset, seed))
     names = [v.name for v in videos]
     if len(set(names)) != len(names):
         raise ValueError(f"{spec.scenario} plan({preset!r}, {seed}) names two videos alike")
@@ -158,7 +172,8 @@ def build(spec: DatasetSpec, preset: str, out: str | Path, seed: int = 0, worker
         bar.close()
     entries = [done[n]["entry"] for n in names]
     index = {"scenario": spec.scenario} if spec.index_names_scenario else {}
-    write_json(out / "index.json", {**index, "preset": preset, "seed": seed, "videos": entries})
+    write_json(out / "index.json", {**index, "preset": preset, "seed": seed, "camera": camera if spec.cameras else "clean",
+                                    "videos": entries})
     return entries
 
 

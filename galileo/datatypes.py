@@ -30,6 +30,8 @@ class ObjectTrack:
     # for drawing (not saved): image centre and features per frame
     center_px: np.ndarray | None = None
     features_px: list = field(default_factory=list)
+    position_sd_m: float | None = None   # the tracker's own position noise (its roughness, the camera's residual
+    # motion): the observation model's noise is at least what this implies
 
     def to_json(self) -> dict:
         def rows(a):
@@ -40,6 +42,8 @@ class ObjectTrack:
              "offset_units": self.offset_units, "detected_by": self.detected_by}
         if self.bottom_up:
             d["bottom_up"] = dict(self.bottom_up)
+        if self.position_sd_m is not None:
+            d["position_sd_m"] = float(self.position_sd_m)
         return d
 
 
@@ -48,6 +52,8 @@ class Tracks:
     fps: float
     objects: list[ObjectTrack]
     notes: list[str] = field(default_factory=list)   # what the tracker wants the user to know (one line each)
+    camera: dict = field(default_factory=dict)       # what the camera did, as the tracker measured and removed it
+    # (galileo.vision.stabilise: motion in px and deg, exposure gains, blur; JSON values)
 
     @property
     def n_frames(self) -> int:
@@ -57,6 +63,15 @@ class Tracks:
     def time_s(self) -> np.ndarray:
         return np.arange(self.n_frames) / self.fps
 
+    def position_noise_m(self) -> float:
+        """The largest position noise the tracker measured on any object (`ObjectTrack.position_sd_m`;
+        0 where it measured none): an observation model's noise should be at least this."""
+        return max((o.position_sd_m or 0.0 for o in self.objects), default=0.0)
+
+    def velocity_noise_mps(self) -> float:
+        """What `position_noise_m` makes of velocities by central differences: sd * fps / sqrt(2)."""
+        return self.position_noise_m() * self.fps / math.sqrt(2)
+
     def by_role(self, role: str) -> ObjectTrack | None:
         return next((o for o in self.objects if o.role == role), None)
 
@@ -64,6 +79,8 @@ class Tracks:
         d = {"fps": self.fps, "time_s": self.time_s.tolist(), "objects": [o.to_json() for o in self.objects]}
         if self.notes:
             d["notes"] = [str(n) for n in self.notes]
+        if self.camera:
+            d["camera"] = dict(self.camera)
         return d
 
     def save(self, path: str | Path) -> None:
@@ -195,7 +212,9 @@ class Tracks:
 #                  name is a scenario's own, for it to check (the ramp refuses any but its own)
 #     offset_units optional: null or an integer (2 or 2.0; not 1.5)
 #     detected_by  optional string; bottom_up optional object of JSON values (finite numbers)
+#     position_sd_m optional: null or a finite number >= 0 (metres)
 #   notes          optional list of strings
+#   camera         optional object of JSON values (finite numbers)
 # Unknown keys are ignored (a later version's additions).
 
 MAX_FPS = 10_000.0          # frames per second of any video
@@ -324,8 +343,12 @@ def _parse_object(o, i: int, n: int | None) -> ObjectTrack:
     if not isinstance(bottom_up, dict):
         raise TracksError(f"{where}.bottom_up: expected an object, got {_show(bottom_up)}")
     _finite_json(bottom_up, f"{where}.bottom_up")
+    sd = o.get("position_sd_m")
+    if sd is not None and (not _is_finite(sd) or not 0 <= sd <= MAX_POSITION_M):
+        raise TracksError(f"{where}.position_sd_m: expected null or a number in [0, {MAX_POSITION_M:g}] (metres), "
+                          f"got {_show(sd)}")
     return ObjectTrack(name, o["role"], pos, vel, np.array(visible, bool).reshape(-1), shape, off, detected_by,
-                       bottom_up)
+                       bottom_up, position_sd_m=None if sd is None else float(sd))
 
 
 def _parse_shape(d, where: str) -> Shape:
@@ -381,7 +404,11 @@ def _parse_tracks(d) -> Tracks:
     notes = d.get("notes", [])
     if not isinstance(notes, list) or not all(isinstance(x, str) for x in notes):
         raise TracksError(f"notes: expected a list of strings, got {_show(notes)}")
-    return Tracks(fps, objects, list(notes))
+    camera = d.get("camera", {})
+    if not isinstance(camera, dict):
+        raise TracksError(f"camera: expected an object, got {_show(camera)}")
+    _finite_json(camera, "camera")
+    return Tracks(fps, objects, list(notes), dict(camera))
 
 
 

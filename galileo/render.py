@@ -38,7 +38,12 @@ BLUR_RENDERS = 5             # ... and a frame averages this many renders over i
 
 
 def gl_view_projection(cam: Camera, near: float = NEAR_M, far: float = FAR_M) -> tuple[list[float], list[float]]:
-    """pybullet view and projection matrices (column-major) for an OpenCV pinhole camera."""
+    """pybullet view and projection matrices (column-major) for an OpenCV pinhole camera.
+
+    Always the pinhole: OpenGL's projection is linear and cannot bend lines, so the camera's
+    lens distortion (`Camera.k1`) is ignored here; a render through a lens is this pinhole
+    render remapped through `Camera.undistort_px` (each output pixel samples the pinhole image
+    where the lens's ray lands)."""
     flip = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV camera axes -> OpenGL camera axes
     view = flip @ cam.world_to_camera
     (fx, _, cx), (_, fy, cy), _ = cam.K

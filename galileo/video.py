@@ -29,8 +29,11 @@ class VideoInfo:
     n_frames: int
 
 
-def write_video(path: str | os.PathLike, frames_rgb: Iterable[np.ndarray], fps: float, crf: int = 18) -> int:
-    """Encode RGB uint8 frames (H, W, 3) as H.264 (yuv420p) MP4, atomically. Returns the frame count."""
+def write_video(path: str | os.PathLike, frames_rgb: Iterable[np.ndarray], fps: float, crf: int = 18,
+                bitrate_kbps: float | None = None) -> int:
+    """Encode RGB uint8 frames (H, W, 3) as H.264 (yuv420p) MP4, atomically. Returns the frame count.
+    Quality `crf` (constant rate factor), or with `bitrate_kbps` an average bitrate (kbit/s) instead,
+    as a phone's or webcam's encoder does (`galileo.footage`)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp.mp4")
@@ -43,7 +46,10 @@ def write_video(path: str | os.PathLike, frames_rgb: Iterable[np.ndarray], fps: 
                     stream = box.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
                     stream.height, stream.width = frame.shape[:2]
                     stream.pix_fmt = "yuv420p"
-                    stream.options = {"crf": str(crf), "preset": "medium", "threads": "1"}
+                    rate = {"crf": str(crf)} if bitrate_kbps is None else {}
+                    stream.options = {**rate, "preset": "medium", "threads": "1"}
+                    if bitrate_kbps is not None:
+                        stream.bit_rate = round(bitrate_kbps * 1000)
                 for packet in stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")):
                     box.mux(packet)
                 n += 1

@@ -85,7 +85,9 @@ def test_tracks_file_has_the_trajectory_layout(demo_dir, tmp_path):
     assert main(["track", str(demo_dir / "video.mp4"), "--scene", str(demo_dir / "scene.json"),
                  "--out", str(out), "--quiet"]) == 0
     d = json.loads(out.read_text())
-    assert set(d) == {"fps", "time_s", "objects"}
+    assert set(d) == {"fps", "time_s", "objects", "camera"}
+    # the render's camera is bolted to the world and its exposure steady: nothing was removed
+    assert d["camera"]["max_shift_px"] == 0 and d["camera"]["failed_frames"] == []
     o = d["objects"][0]
     assert {"name", "role", "position_m", "velocity_mps", "visible", "shape", "offset_units"} <= set(o)
     assert len(o["position_m"]) == len(d["time_s"]) == len(o["visible"])

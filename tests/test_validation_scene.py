@@ -279,7 +279,7 @@ def test_priors_are_proper(tmp_path, base, change, message):
     (RAMP, [(("objects", 0, "restitutoin"), 0.5)], "objects[0].restitutoin: unknown field; expected one of name, "
      "role, shape, mass_kg, friction, restitution, material, offset_units"),
     (RAMP, [(("camera", ""), 1)], "camera['']: unknown field; expected one of K, world_to_camera, width_px, "
-     "height_px, fps, n_frames"),
+     "height_px, fps, n_frames, k1"),
     (SPLASH, [(("scenario",), DELETE)], "tank: unknown field; expected one of scenario, version, ramp, unit_m, "
      "start_units, sim_hz, gravity_mps2, objects, priors, collision_restitution, camera (a file without "
      "\"scenario\" is read as a ramp scene)"),

@@ -152,6 +152,17 @@ def unidentified_markdown(unidentified: dict[str, str]) -> str:
                        ) if unidentified else ""
 
 
+def tracking_markdown(tracks) -> str:
+    """What tracking wants the user to know (each video's `Tracks.notes`: the camera moved, the exposure
+    drifted, the video is blurred, a distractor was left out, nothing moves ...), for the Chains panel;
+    "" when it says nothing."""
+    many = isinstance(tracks, (list, tuple)) and len(tracks) > 1
+    notes = [f"video {v + 1}: {n}" if many else n
+             for v, t in enumerate(tracks if isinstance(tracks, (list, tuple)) else [tracks])
+             for n in (getattr(t, "notes", None) or ())]
+    return "  \n".join(["**Tracking:**"] + notes) if notes else ""
+
+
 def recognition_curves(info: dict, names) -> dict:
     """Latent name -> the recognition proposal's density (a function of the latent's value),
     for the latents it reads (its uniform components are the prior's and are not drawn)."""
@@ -654,6 +665,7 @@ class Viewer:
             self.init_text = g.add_markdown(init_markdown(ctrl.init_info, ctrl.names, ctrl.scenario.starts_doc))
             self.unidentified_text = g.add_markdown(unidentified_markdown(
                 ctrl.scenario.unidentified(ctrl.likelihood_scene)))
+            self.tracking_text = g.add_markdown(tracking_markdown(ctrl.tracks))
             self._recognized = recognition_curves(ctrl.init_info, ctrl.names)
             self.hist_plots = {}
             for n in ctrl.names:

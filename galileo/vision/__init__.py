@@ -12,6 +12,9 @@
   fall-line plane, rotation about y) by Gauss-Newton with iterative outlier rejection.
 * `tracker`: one object's features, their 3-D points on the object and its pose per frame.
 * `velocity`: velocities from positions (central differences that keep a jump sharp).
+* `stabilise`: a video registered to its first frame (camera shake) and normalised to its
+  brightness (exposure, flicker, white balance), frames that do not show the scene, the
+  noise of registered frames and their blur.
 * `shapenet`: the shape-type CNN and the appearance crop it reads.
 * `patch`: scale-normalised object patches (a square of fixed metres) for the recognition model.
 * `draw`: tracks drawn over frames (debug videos).

@@ -135,6 +135,11 @@ def resize_to(image: np.ndarray, hw: tuple[int, int], interpolation: int = cv2.I
     return cv2.resize(image, (hw[1], hw[0]), interpolation=interpolation)
 
 
+def mask_at(mask: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    """A boolean mask resized to height, width `hw` (nearest pixel)."""
+    return resize_to(mask.astype(np.uint8), hw, cv2.INTER_NEAREST) > 0
+
+
 def full_res(mask_small: np.ndarray, full_shape: tuple[int, int]) -> np.ndarray:
     """A small foreground mask, cleaned, at full resolution (boolean)."""
     return resize_to(clean(mask_small), full_shape, cv2.INTER_NEAREST) > 0

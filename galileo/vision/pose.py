@@ -40,7 +40,7 @@ def to_world(p_obj: np.ndarray, pose: np.ndarray) -> np.ndarray:
 
 
 def project(cam: Camera, p_obj: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """Pixels of object-frame points at a planar pose."""
+    """Pixels of object-frame points at a planar pose (through the lens: `Camera.project`)."""
     return cam.project(to_world(p_obj, pose))
 
 

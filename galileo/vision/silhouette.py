@@ -37,8 +37,10 @@ def pixel_hull(mask: np.ndarray) -> np.ndarray:
 def project_silhouette(cam: Camera, points_obj: np.ndarray, rot: np.ndarray, centre: np.ndarray,
                        roi: tuple[int, int, int, int] | None = None) -> np.ndarray:
     """uint8 mask (1 inside) of the convex hull of object-frame points posed at (rot, centre)
-    and projected, over the region of interest (x0, y0, w, h) or the whole image; empty
-    where a point does not project."""
+    and projected (through the lens: `Camera.project`), over the region of interest (x0, y0,
+    w, h) or the whole image; empty where a point does not project. The hull of the distorted
+    points: a lens bends the outline's edges between them by k1 r^2 of a shape's few pixels,
+    well under a pixel at the bound a camera allows."""
     x0, y0, w, h = (0, 0, cam.width_px, cam.height_px) if roi is None else roi
     uv = cam.project(points_obj @ rot.T + centre)
     if roi is not None:

@@ -38,9 +38,7 @@ class ObjectTracker:
         self.lost = False
         self.velocity = np.zeros(3)                 # pose change per frame, for prediction
         self.win = klt_window(mask)
-        r, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
-        self._eye = -r.T @ t
-        self._kinv_rt = np.linalg.inv(cam.K).T @ r   # pixel (homogeneous) -> world direction
+        self._eye = cam.position_in_world
         self._hull = coarse_triangles(self.shape).reshape(-1, 3)
 
     def project(self, p_obj: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -52,8 +50,9 @@ class ObjectTracker:
         return project_silhouette(self.cam, self._hull, rot_y(pose[2]), np.array([pose[0], 0.0, pose[1]])) > 0
 
     def _unproject(self, uv: np.ndarray) -> np.ndarray:
-        """Object-frame points where the pixels' rays meet the shape at the current pose."""
-        dirs_w = np.c_[uv, np.ones(len(uv))] @ self._kinv_rt
+        """Object-frame points where the pixels' rays (through the lens) meet the shape at the
+        current pose."""
+        dirs_w = self.cam.pixel_rays(uv)
         rot = rot_y(self.pose[2])
         c = np.array([self.pose[0], 0.0, self.pose[1]])
         return ray_cast(self.shape, (self._eye - c) @ rot, dirs_w @ rot)

@@ -66,3 +66,27 @@ def velocity_from_positions(pos: np.ndarray, visible: np.ndarray, fps: float) ->
         f_off = np.linalg.norm(f - extrapolate(ff, fff, 1.0))
         vel[i] = extrapolate(b, bb, 0.5) if f_off > b_off else extrapolate(f, ff, 0.5)
     return vel
+
+
+THIRD_DIFF_VAR = 20.0   # var(e[i+3] - 3 e[i+2] + 3 e[i+1] - e[i]) over var(e) for white noise e
+NOISE_MOVING_MPS = 0.02  # position noise is measured where the object moves at least this fast (at rest a tracker
+# may repeat a position exactly, and what matters is the noise of the motion)
+NOISE_MIN_SAMPLES = 10
+
+
+def position_noise(pos: np.ndarray, visible: np.ndarray, fps: float) -> float | None:
+    """The SD of a track's position noise (per component, in metres) from its third differences
+    over runs of four visible frames in which it moves (each step at least NOISE_MOVING_MPS):
+    they cancel any constant acceleration (a slide, a fall) and leave white noise with 20 times
+    its variance; the median's robust spread ignores the few that straddle a jump (a collision,
+    the landing). None with fewer than NOISE_MIN_SAMPLES of them."""
+    step = np.linalg.norm(np.diff(pos, axis=0), axis=1) * fps          # (F-1,), NaN where not seen
+    moving = np.nan_to_num(step) >= NOISE_MOVING_MPS
+    ok = visible[3:] & visible[2:-1] & visible[1:-2] & visible[:-3] & moving[2:] & moving[1:-1] & moving[:-2]
+    d3 = (pos[3:] - 3 * pos[2:-1] + 3 * pos[1:-2] - pos[:-3])[ok]
+    if len(d3):
+        d3 = d3[:, np.ptp(pos[visible], axis=0) > 0]    # components that vary (not a fixed y)
+    if d3.size < NOISE_MIN_SAMPLES:
+        return None
+    d3 = d3.ravel()
+    return float(MAD_TO_SD * np.median(np.abs(d3 - np.median(d3))) / math.sqrt(THIRD_DIFF_VAR))

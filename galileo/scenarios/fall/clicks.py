@@ -39,6 +39,7 @@ import numpy as np
 
 from ...camera import FOCAL_PX, physics_hz
 from ...clicks import (
+    DISTORTION,
     MAX_FOCAL_SPREAD_PER_PX,
     MAX_REPROJECTION_PX,
     MIN_CORNER_SINE,
@@ -52,6 +53,7 @@ from ...clicks import (
     draw_lines,
     focal_from_homography,
     focal_spread_per_px,
+    focal_through_lens,
     rms_px,
 )
 from ...errors import GalileoError
@@ -85,6 +87,7 @@ FIELDS = (
     Field("focal_px", "Focal", "px", None, "the camera's focal length in pixels; not given: estimated from the "
           "rectangle (principal point at the image centre, square pixels), or where it is seen too nearly face-on, "
           f"a {DEFAULT_HFOV_DEG:g} deg horizontal field of view", FOCAL_PX),
+    DISTORTION,
     NameField("object", "Object", "id", FallScene.object, "the object's name: videos of the same object on the same "
               "surface share its restitution and friction there", names=NAMED),
     NameField("surface", "Surface", "id", FallScene.surface, "the surface's name (this table, this foam mat): "
@@ -161,11 +164,13 @@ def solve(uv: np.ndarray, v: dict, video_info, frames):
                       surface_size_m=(float(v["length_m"]), float(v["width_m"])), shape=shape, fps=fps,
                       n_frames=int(video_info.n_frames), sim_hz=physics_hz(FallScene.sim_hz, fps, SIM_HZ))
     corners = surface_corners_m(scene)
-    focal = v["focal_px"]
+    focal, k1 = v["focal_px"], v["distortion"]
     if focal is None:
-        focal = estimate_focal_px(uv, corners, video_info.width_px, video_info.height_px)
+        focal = focal_through_lens(lambda c: estimate_focal_px(c, corners, video_info.width_px, video_info.height_px),
+                                   uv, video_info, k1)
         focal = default_focal_px(video_info.width_px) if focal is None else focal
-    cam = camera_from_plane(uv, corners, video_info, facing=np.array([0.0, 0.0, 1.0]), focal_px=focal, what=SURFACE)
+    cam = camera_from_plane(uv, corners, video_info, facing=np.array([0.0, 0.0, 1.0]), focal_px=focal, what=SURFACE,
+                            k1=k1)
     distance = float(np.linalg.norm(cam.position_in_world))
     if distance > MAX_CAMERA_DISTANCE_M:
         raise GalileoError(f"a {scene.surface_size_m[0]:g} x {scene.surface_size_m[1]:g} m rectangle seen so puts "

@@ -65,7 +65,8 @@ class _FallRun(Run):
 
 
 def camera_rows(camera) -> np.ndarray:
-    """The camera's 3 x 4 projection matrix K [R | t]."""
+    """The camera's 3 x 4 projection matrix K [R | t] (pinhole: `FallLikelihood.project`
+    applies the lens's distortion after it)."""
     return camera.K @ camera.world_to_camera[:3, :]
 
 
@@ -84,6 +85,7 @@ class FallLikelihood(FrameLikelihood):
         self.seen = np.asarray(obj.visible, bool).copy()
         self.seen[: scene.release_frame] = False
         self.P = camera_rows(scene.camera)
+        self.camera = scene.camera
         pos = np.nan_to_num(np.asarray(obj.position_m, float))
         uv = scene.camera.project(pos)
         self.obs = [(float(a), float(b)) for a, b in uv]
@@ -119,11 +121,17 @@ class FallLikelihood(FrameLikelihood):
         return _FallRun(physics.Run(p, scene.shape, scene.sim_hz, self.fps, scene.release_frame), self)
 
     def project(self, pos) -> tuple[float, float]:
+        """The pixel of a world point: `Camera.project`, unrolled for one point (a pinhole's
+        pixel in plain floats, then the lens's distortion where there is one)."""
         P = self.P
         x, y, z = pos
         w = P[2, 0] * x + P[2, 1] * y + P[2, 2] * z + P[2, 3]
-        return ((P[0, 0] * x + P[0, 1] * y + P[0, 2] * z + P[0, 3]) / w,
-                (P[1, 0] * x + P[1, 1] * y + P[1, 2] * z + P[1, 3]) / w)
+        uv = ((P[0, 0] * x + P[0, 1] * y + P[0, 2] * z + P[0, 3]) / w,
+              (P[1, 0] * x + P[1, 1] * y + P[1, 2] * z + P[1, 3]) / w)
+        if self.camera.k1 == 0.0:
+            return uv
+        u, v = self.camera.distort_px(uv)
+        return float(u), float(v)
 
     def observe(self, f: int, state, noise: _Noise) -> float:
         if not self.seen[f]:

@@ -77,11 +77,10 @@ def rest_height_m(shape: Shape) -> float:
 
 
 def rays(cam, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The camera's centre and the unit rays (N, 3) through pixels `uv` (N, 2), world frame."""
-    uv = np.asarray(uv, float).reshape(-1, 2)
-    r, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
-    d = np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(cam.K).T @ r
-    return -r.T @ t, d / np.linalg.norm(d, axis=1, keepdims=True)
+    """The camera's centre and the unit rays (N, 3) through pixels `uv` (N, 2), world frame
+    (through the lens: `Camera.pixel_rays`)."""
+    d = cam.pixel_rays(uv)
+    return cam.position_in_world, d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def on_plane(cam, uv: np.ndarray, z_m: float) -> np.ndarray:

@@ -23,8 +23,8 @@ import math
 import numpy as np
 
 from ...camera import FOCAL_PX
-from ...clicks import (MAX_REPROJECTION_PX, Calibration, Field, NotFound, Point, camera_from_plane, check_quad,
-                       draw_clicks, draw_lines, rms_px)
+from ...clicks import (DISTORTION, MAX_REPROJECTION_PX, Calibration, Field, NotFound, Point, camera_from_plane,
+                       check_quad, draw_clicks, draw_lines, rms_px)
 from ...errors import GalileoError
 from ...video import VideoInfo
 from .scene import ANGLE_DEG, DISTANCE_M, OBJECT_SIZE_M, RAMP_SIZE_M, TARGET_DEFAULTS, Ramp
@@ -46,6 +46,7 @@ FIELDS = (
           "upper points are; not given: the ramp's length (its upper corners)", RAMP_SIZE_M),
     Field("focal_px", "Focal", "px", None, "the camera's focal length in pixels; not given: estimated from the "
           "points (principal point at the image centre, square pixels)", FOCAL_PX),
+    DISTORTION,
     Field("start_m", "Start", "m", None, "how far up the ramp the object starts, from the foot to its centre; not "
           "given: found in the video (where the first frame differs from its end; a video in which it never moves "
           "needs this)", RAMP_SIZE_M),
@@ -70,15 +71,16 @@ def ramp_points_in_world(length_m: float, width_m: float, angle_deg: float,
 
 def camera_from_clicks(uv, *, width_px: int, height_px: int, fps: float, n_frames: int, length_m: float,
                        width_m: float, angle_deg: float, upper_at_m: float | None = None,
-                       focal_px: float | None = None):
+                       focal_px: float | None = None, k1: float = 0.0):
     """(camera, RMS reprojection error in pixels) from the four clicks (see the module; the
-    clicks' count, place in the frame and distinctness are `Calibration.check_clicks`')."""
+    clicks' count, place in the frame and distinctness are `Calibration.check_clicks`'), seen
+    through a lens of distortion k1."""
     uv = np.asarray(uv, float)
     check_quad(uv, ORDER, "the ramp's top surface")
     world = ramp_points_in_world(length_m, width_m, angle_deg, upper_at_m)
     a = math.radians(angle_deg)
     cam = camera_from_plane(uv, world, VideoInfo(width_px, height_px, fps, n_frames), focal_px=focal_px,
-                            facing=np.array([math.sin(a), 0.0, math.cos(a)]), what="the ramp's top surface")
+                            facing=np.array([math.sin(a), 0.0, math.cos(a)]), what="the ramp's top surface", k1=k1)
     err = rms_px(cam.project(world) - uv)
     if err > MAX_REPROJECTION_PX:
         raise GalileoError(f"the points disagree with the stated ramp by {err:.1f} px (more than "
@@ -89,10 +91,10 @@ def camera_from_clicks(uv, *, width_px: int, height_px: int, fps: float, n_frame
 def scene_from_clicks(uv, video_info, *, length_m: float, width_m: float, angle_deg: float,
                       upper_at_m: float | None = None, focal_px: float | None = None, start_m: float | None = None,
                       target: str = "none", target_distance_m: float = DEFAULT_TARGET_DISTANCE_M,
-                      target_size_m=None):
+                      target_size_m=None, k1: float = 0.0):
     """(scene, RMS reprojection error in pixels) for a user's video from the four clicks and
     the ramp's measurements (each already checked against its field): the camera from
-    `camera_from_clicks`, the ramp's size and angle, the object starting `start_m` up the ramp
+    `camera_from_clicks` (through a lens of distortion k1), the ramp's size and angle, the object starting `start_m` up the ramp
     (foot to centre; None: the paper's 30 units, or the ramp's middle on a ramp too short for
     them), and the target if any. What the numbers say together is checked here; a wrong one
     is a GalileoError naming its flag."""
@@ -107,7 +109,8 @@ def scene_from_clicks(uv, video_info, *, length_m: float, width_m: float, angle_
         raise GalileoError("--target-size-m needs a target: give --target " + " or ".join(TARGET_DEFAULTS))
     cam, err = camera_from_clicks(uv, width_px=video_info.width_px, height_px=video_info.height_px,
                                   fps=video_info.fps, n_frames=video_info.n_frames, length_m=length_m,
-                                  width_m=width_m, angle_deg=angle_deg, upper_at_m=upper_at_m, focal_px=focal_px)
+                                  width_m=width_m, angle_deg=angle_deg, upper_at_m=upper_at_m, focal_px=focal_px,
+                                  k1=k1)
     scene = default_scene(angle_deg, target=target, camera=cam, distance_m=target_distance_m)
     half_m = scene.ramp_object.shape.size_m[0] / 2
     if start_m is None:   # the paper's 30 units where the ramp is long enough; else its middle
@@ -129,7 +132,7 @@ def solve(uv: np.ndarray, v: dict, video_info, frames):
     found in the frames where not given (`find_start_m`)."""
     common = dict(length_m=v["ramp_length_m"], width_m=v["ramp_width_m"], angle_deg=v["angle_deg"],
                   upper_at_m=v["upper_at_m"], focal_px=v["focal_px"], target=v["target"],
-                  target_distance_m=v["target_distance_m"], target_size_m=v["target_size_m"])
+                  target_distance_m=v["target_distance_m"], target_size_m=v["target_size_m"], k1=v["distortion"])
     scene, err = scene_from_clicks(uv, video_info, start_m=v["start_m"], **common)
     if v["start_m"] is not None:
         return scene, err
@@ -231,9 +234,10 @@ def _start_region(scene, height_m: float, hw: tuple[int, int], scale: float) -> 
 
 def _along_ramp(scene, uv: np.ndarray, height_m: float) -> float:
     """The distance s up the ramp whose point s up, `height_m` above the surface on the fall
-    line (y = 0), projects nearest to pixel `uv`: the image of that line is a line; the foot of
-    the perpendicular from `uv` on it, mapped back to s."""
+    line (y = 0), projects nearest to pixel `uv`: the pinhole image of that line is a line; the
+    foot of the perpendicular from `uv` (undistorted) on it, mapped back to s."""
     cam, r = scene.camera, scene.ramp
+    uv = cam.undistort_px(uv)
     p = cam.K @ cam.world_to_camera[:3]                     # 3 x 4 projection
     up = np.array([-math.cos(r.angle_rad), 0.0, math.sin(r.angle_rad)])
     a = p @ np.r_[height_m * r.normal, 1.0]                 # the line's point at s = 0, homogeneous

@@ -9,8 +9,11 @@ Presets:
 
 Each video folder holds video.mp4 (H.264, 640x480, 30 fps), scene.json (everything to
 simulate it and its camera) and truth.json (latents and the simulated trajectory).
-The output folder also gets index.json listing the videos. Deterministic per seed; built
-by `galileo.dataset.build` (parallel, resumable) from `DATASET`.
+The output folder also gets index.json listing the videos. Filmed through a camera's
+effects (`galileo.footage`, the plan's camera; clean by default) the video is that camera's,
+scene.json's camera carries its lens (k1) and truth.json what the camera did ("camera");
+the latents and the trajectory are the clean video's. Deterministic per seed; built by
+`galileo.dataset.build` (parallel, resumable) from `DATASET`.
 """
 from __future__ import annotations
 
@@ -42,18 +45,20 @@ class VideoSpec:
     angle_deg: float
     target: str  # cardboard | foam | none
     seed: int
+    camera: str = "clean"   # the camera effects it is filmed through (galileo.footage's name)
 
 
 def _demo_object() -> CatalogueObject:
     return CatalogueObject("wooden block", 0, Shape("box", (0.07, 0.05, 0.05)), 0.16, 0.22)
 
 
-def plan(preset: str, seed: int = 0) -> list[VideoSpec]:
-    """The videos a preset renders (names, objects, angles, targets, per-video seeds)."""
+def plan(preset: str, seed: int = 0, camera: str = "clean") -> list[VideoSpec]:
+    """The videos a preset renders (names, objects, angles, targets, per-video seeds), filmed
+    through `camera`'s effects."""
     if preset not in PRESETS:
         raise GalileoError(f"unknown preset {preset!r}; expected one of {', '.join(PRESETS)}")
     if preset == "demo":
-        return [VideoSpec("demo", _demo_object(), 20.0, "cardboard", seed)]
+        return [VideoSpec("demo", _demo_object(), 20.0, "cardboard", seed, camera)]
     objs = catalogue(seed)
     if preset == "small":
         # one object from each of 10 materials, spread over the friction range
@@ -66,7 +71,8 @@ def plan(preset: str, seed: int = 0) -> list[VideoSpec]:
         for angle in (20.0, 10.0):
             slug = obj.material.replace(" ", "-")
             specs.append(VideoSpec(f"{len(specs):03d}_{slug}{obj.index}_{int(angle)}deg_{target}",
-                                   obj, angle, target, int(np.random.SeedSequence([seed, len(specs)]).generate_state(1)[0])))
+                                   obj, angle, target, int(np.random.SeedSequence([seed, len(specs)]).generate_state(1)[0]),
+                                   camera))
     return specs
 
 
@@ -110,6 +116,7 @@ def truth_json(scene: Scene, spec: VideoSpec, traj) -> dict:
 
 def render_one(spec: VideoSpec, out_dir: str) -> dict:
     """Render one video folder; returns its index entry."""
+    from ...footage import Footage, effects_from_name
     from ...render import Look
     from .render import render_to_video
 
@@ -118,14 +125,20 @@ def render_one(spec: VideoSpec, out_dir: str) -> dict:
     n = video_length(scene)
     scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, n_frames=n))
     rng = np.random.default_rng([spec.seed, 1])
-    traj = render_to_video(scene, folder / "video.mp4", n, look=Look.random(rng), texture_seed=spec.seed)
+    footage = None if spec.camera == "clean" else Footage(effects_from_name(spec.camera), scene.camera, spec.seed)
+    traj = render_to_video(scene, folder / "video.mp4", n, look=Look.random(rng), texture_seed=spec.seed,
+                           footage=footage)
+    truth = truth_json(scene, spec, traj)
+    if footage is not None:
+        scene = dataclasses.replace(scene, camera=footage.camera)
+        truth["camera"] = {"name": spec.camera, **footage.to_json()}
     scene.save(folder / "scene.json")
-    write_json(folder / "truth.json", truth_json(scene, spec, traj), indent=None)
+    write_json(folder / "truth.json", truth, indent=None)
     return {"name": spec.name, "material": spec.obj.material, "object": f"{spec.obj.material}#{spec.obj.index}",
             "angle_deg": spec.angle_deg, "target": spec.target, "n_frames": n}
 
 
-DATASET = dataset.DatasetSpec("ramp", PRESETS, plan, render_one, index_names_scenario=False,
+DATASET = dataset.DatasetSpec("ramp", PRESETS, plan, render_one, index_names_scenario=False, cameras=True,
                               describe="objects sliding down a 10 or 20 degree ramp: demo (1 video), small (20), full (150)")
 
 

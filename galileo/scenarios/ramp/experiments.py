@@ -12,7 +12,10 @@ physics engine, each against ground truth:
 
 `summarise` then scores the records: friction (|k1_MAP - k1_true|, the posterior median's
 error, 90% coverage), which is heavier (6.2: collision videos whose true ratio is >= 2 or
-<= 0.5, as in the easy/moderate cases), will it move, convergence.
+<= 0.5, as in the easy/moderate cases), the mass ratio's Spearman correlation with the truth
+(collision videos), will it move, convergence, and what tracking made of motion: every video
+is tracked (a still one too, then skipped), and moving objects read as still (the tracker's
+`still_note`) and still ones read as moving are counted.
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import spearmanr
 
 from ...datatypes import Trajectory
 from ...errors import GalileoError
@@ -28,7 +32,7 @@ from ...jsonio import read_json
 from ...runner import RunConfig, infer
 from .predict import slides
 from .scene import Scene
-from .tracking import track
+from .tracking import still_note, track
 
 MOVED_M = 0.005          # a ground-truth object "moved" when its centre travelled more than this
 FIT_ANGLE_DEG, PREDICT_ANGLE_DEG = 20.0, 10.0   # will it move: fit on one, predict the other
@@ -85,12 +89,18 @@ def run_video(folder: Path, config: RunConfig, executor=None) -> dict:
         rec["collision"] = bool(np.ptp(traj.position_m[1, :, 0]) > MOVED_M)
         if rec["collision"]:   # the one mass quantity a collision identifies: scored like a latent
             rec["truth"]["log_mass_ratio"] = float(np.log(lat["m1_kg"] / lat["m2_kg"]))
-    if not rec["moves"]:
-        # the tracker holds a still object at rest; a fit would only bound k1 from below
-        return {**rec, "status": "skipped", "skip_reason": "nothing moves in the video"}
     t0 = time.perf_counter()
     tracks = track(folder / "video.mp4", scene, progress=False)
     t1 = time.perf_counter()
+    # what the tracker saw: did anything move (a still video's tracks hold every object at rest, with a note),
+    # and what it said of the camera
+    rec["tracked_moves"] = still_note(scene) not in tracks.notes
+    rec["track_notes"] = list(tracks.notes)
+    if tracks.camera:
+        rec["camera"] = dict(tracks.camera)
+    if not rec["moves"]:
+        # the tracker holds a still object at rest; a fit would only bound k1 from below
+        return {**rec, "status": "skipped", "skip_reason": "nothing moves in the video"}
     res = infer(scene, tracks, config, executor=executor, progress=False)
     t2 = time.perf_counter()
     doc = res.to_json()
@@ -144,6 +154,9 @@ def summarise(records: list[dict]) -> dict:
     wim = [r["will_it_move"] for r in fitted if r.get("will_it_move")]
     wim_ok = [w["predicted_moves"] == w["true_moves"] for w in wim]
     out = [r["outcome"] for r in fitted if r.get("outcome") and r.get("collision")]
+    ratio = [(r["mass_ratio"], r["truth"]["m1_kg"] / r["truth"]["m2_kg"]) for r in fitted
+             if r.get("collision") and r.get("mass_ratio")]
+    tracked = [r for r in records if "tracked_moves" in r]
     return {"videos": len(records), "fitted": len(fitted),
             "skipped": sum(r.get("status") == "skipped" for r in records),
             "failed": [{"video": r["video"], "error": r.get("error", "")} for r in records if r.get("status") == "failed"],
@@ -154,6 +167,9 @@ def summarise(records: list[dict]) -> dict:
             "converged": int(sum(bool(r.get("converged")) for r in fitted)),
             "which_is_heavier": {"scored": len(heavy), "right": int(sum(heavy_ok)),
                                  "accuracy": float(np.mean(heavy_ok)) if heavy_ok else None},
+            "mass_ratio_spearman": (float(spearmanr(*zip(*ratio)).statistic) if len(ratio) >= 3 else None),
+            "moving_read_as_still": sum(r["moves"] and not r["tracked_moves"] for r in tracked),
+            "still_read_as_moving": sum(not r["moves"] and r["tracked_moves"] for r in tracked),
             "will_it_move": {"scored": len(wim), "right": int(sum(wim_ok)),
                              "accuracy": float(np.mean(wim_ok)) if wim_ok else None},
             "outcome_median_abs_error_m": (float(np.median([abs(o["predicted_final_x_m"] - o["true_final_x_m"])

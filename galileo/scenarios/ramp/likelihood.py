@@ -5,7 +5,9 @@
 
 on the x and z velocity components (the fall-line plane; the tracker reports y = 0).
 `sigma_mps` is the paper's Sigma = 0.05, read as a standard deviation in m/s (so the
-variance is 0.0025 m^2/s^2). The simulation runs as many frames as the video; frames
+variance is 0.0025 m^2/s^2), or more: the velocity noise the tracker measured on its own
+tracks (`Tracks.velocity_noise_mps`, from their roughness: a shaken, noisy, compressed or
+blurred video's) where that is larger. The simulation runs as many frames as the video; frames
 where an object was not seen are left out. Shapes and the ramp object's offset are fixed
 from tracking (section 3.1).
 
@@ -228,7 +230,9 @@ class VelocityLikelihood(FrameLikelihood):
 
     def __init__(self, scene: Scene, tracks: Tracks, sigma_mps: float = SIGMA_MPS, speedups: bool = True,
                  cache_size: int = KEPT_PREFIXES):
-        self.sigma_mps = check_sigma(sigma_mps)   # the fixed sigma (unused with the sigma latent)
+        # the fixed sigma (unused with the sigma latent): at least the noise the tracker measured on its own
+        # tracks (a shaken, noisy or compressed video's), so that intervals widen instead of lying
+        self.sigma_mps = max(check_sigma(sigma_mps), tracks.velocity_noise_mps())
         self.scene = scene_for_inference(scene, tracks)
         names = self.scene.latent_names
         # the physics depends on every latent but sigma, up to the switch on k1 alone; a sigma

@@ -2,6 +2,10 @@
 
 Pipeline, for a video and a scene file whose camera describes it:
 
+0. Stabilisation (`galileo.vision.stabilise`): every frame registered to frame 0 against the
+   background (the objects' starts left out) and brought to its exposure and white balance, so
+   that a phone on a table, a webcam or a phone in a hand look bolted down and evenly lit to
+   what follows; what it removed goes in `Tracks.camera` and, where it is much, in a note.
 1. Background model: OpenCV MOG2 with five mixture components, learned from the video
    itself. Backwards over the last third at half resolution, it gives the scene as it
    ends: at frame 0 that shows every object that later leaves its start (a forward model
@@ -33,7 +37,20 @@ Pipeline, for a video and a scene file whose camera describes it:
    foot, where a median of displacements is not.
 6. Positions in metres (world frame), velocities by central differences (one-sided at the
    ends of a visible run), no smoothing. Frames where an object is not seen are marked
-   `visible: false` with null position and velocity, never invented.
+   `visible: false` with null position and velocity, never invented, and never held: an
+   object tracked where frame 0 shows the empty scene (nothing there at the start or the end,
+   and no object's start) and nothing differs from it (`_absent`: features that slid onto the
+   ramp or the ground hold a still track where nothing is) is lost since it began to be, those
+   frames not seen, and searched for again. Each track's own position noise
+   (`ObjectTrack.position_sd_m`, `galileo.vision.velocity.position_noise`: from its third
+   differences where it moves) tells the likelihood how far to trust it.
+
+Where the objects can be (`object_region`: on the ramp and the ground, up to 1.5 times the
+largest size above them) bounds what counts as motion: something that moves elsewhere (a
+person walking by, a shadow on the wall, a hand at the frame's edge) is left out, with a
+note (`DISTRACTOR_NOTE`); a video is still when nothing differs between its start and end
+where the objects start (`_start_band`, the target's place) and nothing in that region
+differs at its end from its start.
 
 The video is streamed (`galileo.video.VideoStream`): one pass learns the background models,
 a second tracks, holding the frame before; memory does not grow with the video's length.
@@ -66,14 +83,15 @@ from ...shapes import SHAPE_TYPES, Shape, shape_class
 from ...video import VideoStream, yuv_to_rgb
 from ...vision import shapenet
 from ...vision.background import (MODEL_MAX_FRAMES, MOG_SCALE, blobs, clean, dilate, erode, foreground, frames_at,
-                                  full_res, largest_component, mog2, mog2_background, noise_sd, not_the_scene,
+                                  full_res, largest_component, mask_at, mog2, mog2_background, noise_sd, not_the_scene,
                                   resize_to, scaled, spread, work_scale, yuv_image)
 from ...vision.draw import draw_tracks
 from ...vision.klt import flow
 from ...vision.pose import rot_y
 from ...vision.silhouette import fill_polygon, fit_silhouette, project_silhouette, slide_silhouette
 from ...vision.tracker import ObjectTracker, rarely_seen_notes
-from ...vision.velocity import velocity_from_positions
+from ...vision.stabilise import Stabilised
+from ...vision.velocity import position_noise, velocity_from_positions
 from .scene import Scene
 
 END_MODEL_MIN_FRAMES = 10  # the end's background model: the last third of the video, at least this many frames
@@ -91,6 +109,19 @@ RELOCATE_RANGE_M = 0.05    # ... and how far along its support the object may be
 OTHERS_MARGIN_PX = 9       # features keep off other objects' predicted silhouettes grown by this
 REACQUIRE_PX = 31          # a lost object is searched for in its predicted silhouette grown by this
 RESEED_ERODE_PX = 5        # re-seeding stays this far inside the predicted silhouette
+REACQUIRE_AREA_RATIO = 4.0 # ... among blobs from a quarter to four times the area of its silhouette
+REACQUIRE_G_MPS2 = 9.81    # ... grown by how far from its constant-velocity prediction an object accelerated at
+# up to g can be after the frames it has been lost (1/2 g t^2, in pixels at the ramp's foot)
+PRESENT_MIN_FRACTION = 0.1 # a tracked object is there when at least this share of its silhouette (outside every
+# object's start) differs from the empty scene ...
+ABSENT_FRAMES = 2          # ... and lost when it is not, this many frames running: those frames are marked not
+# seen (features that slid onto the ramp or the ground would otherwise hold a still track where nothing is)
+JUDGED_MIN_FRACTION = 0.5  # judged only when at least this share of its silhouette lies outside the starts
+REGION_HEIGHT_FACTOR = 1.5 # where the objects can be: up to this times the largest size their prior allows above the
+REGION_GROUND_M = 3.0      # ramp (downhill of the highest start) and the ground (this far beyond the ramp's foot);
+# what moves elsewhere (a person walking by, a shadow on the wall, a hand at the frame's edge) is not an object
+STABILISE_MARGIN_PX = 15  # stabilisation registers on the background away from the objects' starts by this
+NEAR_DEPTH_M = 0.01       # points nearer the camera than this (or behind it) do not project
 ROLE_COLORS = {"ramp": (255, 80, 40), "target": (40, 160, 255)}  # debug video
 
 
@@ -207,6 +238,35 @@ def _uphill_component(scene: Scene, mask: np.ndarray) -> np.ndarray | None:
 
     return largest_component(max(big, key=up_the_ramp))
 
+def _start_band(scene: Scene) -> np.ndarray:
+    """Where the ramp object may start (the image region its offset prior allows)."""
+    pri, unit = scene.priors, scene.unit_m
+    lo = (scene.start_units + pri.offset_units[0]) * unit - pri.size_m[1] / 2
+    hi = (scene.start_units + pri.offset_units[1]) * unit + pri.size_m[1] / 2
+    return _ramp_band_mask(scene, max(lo, 0.0), min(hi, scene.ramp.length_m), pri.size_m[1])
+
+
+def object_region(scene: Scene, size_m: float | None = None) -> np.ndarray:
+    """Where in the image the objects can be (boolean): on the ramp downhill of the highest start its
+    prior allows and on the ground up to REGION_GROUND_M beyond the foot, up to REGION_HEIGHT_FACTOR
+    times the largest object's size (`size_m`, default the largest the prior allows) above them and
+    as far to either side. The whole image where that region reaches behind the camera."""
+    cam, r, pri = scene.camera, scene.ramp, scene.priors
+    size = pri.size_m[1] if size_m is None else size_m
+    h, side = REGION_HEIGHT_FACTOR * size, size
+    top = min(r.length_m, (scene.start_units + pri.offset_units[1]) * scene.unit_m + size)
+    ramp = [-s * r.downhill + (0.0, y, 0.0) + up * r.normal for s in (0.0, top) for y in (-side, side) for up in (0.0, h)]
+    ground = [np.array([x, y, z]) for x in (-side, REGION_GROUND_M) for y in (-side, side) for z in (0.0, h)]
+    hw = (cam.height_px, cam.width_px)
+    out = np.zeros(hw, bool)
+    rot, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
+    for box in (np.array(ramp), np.array(ground)):
+        if np.any(box @ rot.T[:, 2] + t[2] <= NEAR_DEPTH_M):
+            return np.ones(hw, bool)
+        out |= project_silhouette(cam, box, np.eye(3), np.zeros(3)) > 0
+    return out
+
+
 def _detect_start(scene: Scene, fg0: np.ndarray) -> dict[str, tuple[np.ndarray, str]]:
     """Frame-0 silhouettes by role.
 
@@ -217,16 +277,28 @@ def _detect_start(scene: Scene, fg0: np.ndarray) -> dict[str, tuple[np.ndarray, 
     with the ghost of a ramp object that stops against it).
     """
     found: dict[str, tuple[np.ndarray, str]] = {}
-    pri, unit = scene.priors, scene.unit_m
-    lo = (scene.start_units + pri.offset_units[0]) * unit - pri.size_m[1] / 2
-    hi = (scene.start_units + pri.offset_units[1]) * unit + pri.size_m[1] / 2
-    band = _ramp_band_mask(scene, max(lo, 0.0), min(hi, scene.ramp.length_m), pri.size_m[1])
-    blob = _uphill_component(scene, fg0 & band)
+    blob = _uphill_component(scene, fg0 & _start_band(scene))
     found["ramp"] = (blob, "motion") if blob is not None else (_scene_mask(scene, 0), "scene")
     if scene.target is not None:
         # the scene file states the target's kind, size and place: take them
-        found["target"] = (_scene_mask(scene, 1), "scene")
+        found["target"] = (_target_start(scene), "scene")
     return found
+
+
+def _target_start(scene: Scene) -> np.ndarray:
+    """The target's silhouette where the scene file puts it (nothing without a target)."""
+    hw = (scene.camera.height_px, scene.camera.width_px)
+    return _scene_mask(scene, 1) if scene.target is not None else np.zeros(hw, bool)
+
+
+def _of_its_size(mask: np.ndarray, near: np.ndarray, area_px: int) -> np.ndarray | None:
+    """The largest component of `mask` whose centre lies in `near` and whose whole area is within
+    REACQUIRE_AREA_RATIO of `area_px`, as a convex silhouette (None if none is): a person walking by,
+    a shadow or a hand reaching into the search window is larger than it, however much of it the
+    window holds."""
+    ok = [b for b in blobs(mask, 0.0) if 1 / REACQUIRE_AREA_RATIO <= np.count_nonzero(b) / max(area_px, 1)
+          <= REACQUIRE_AREA_RATIO and near[tuple(np.round(np.argwhere(b).mean(axis=0)).astype(int))]]
+    return largest_component(max(ok, key=np.count_nonzero)) if ok else None
 
 
 def _relocate(scene: Scene, t: ObjectTracker, blob: np.ndarray) -> None:
@@ -241,6 +313,43 @@ def _relocate(scene: Scene, t: ObjectTracker, blob: np.ndarray) -> None:
                          (a0 - RELOCATE_RANGE_M, a0 + RELOCATE_RANGE_M), RELOCATE_PAD_PX)
     centre, _ = _pose_on_support(scene, role, a, t.shape.height_m)
     t.reset(np.array([centre[0], centre[2], -phi]))
+
+
+def _agreed(models: "_SceneModels", starts: list[np.ndarray]) -> np.ndarray:
+    """Where frame 0 shows the empty scene (at the models' scale): where it agrees with the scene as it
+    ends (nothing there at either time; disagreement grown by a model pixel), outside the objects'
+    start silhouettes (`starts`, full resolution: an object that never moves is in both)."""
+    hw = models.small0.shape[:2]
+    at_start = np.zeros(hw, bool)
+    for mask in starts:
+        at_start |= mask_at(mask, hw)
+    return ~dilate((foreground(models.small0, models.bg_end, models.noise) > 0) | at_start, 3)
+
+
+def _absent(t: ObjectTracker, occupied: np.ndarray, agreed: np.ndarray) -> bool:
+    """Whether the empty scene shows where object `t` is tracked: fewer than PRESENT_MIN_FRACTION of
+    its silhouette's pixels where the start and the end agree (`_agreed`; at the models' scale)
+    differ from frame 0 there (`occupied`). Not judged (False) while less than JUDGED_MIN_FRACTION
+    of the silhouette lies there (an object still at its start or already where it comes to rest)."""
+    sil = mask_at(t.predicted_mask(), occupied.shape)
+    judged = sil & agreed
+    n = int(np.count_nonzero(judged))
+    if n == 0 or n < JUDGED_MIN_FRACTION * np.count_nonzero(sil):
+        return False
+    return np.count_nonzero(occupied[judged]) < PRESENT_MIN_FRACTION * n
+
+
+def _drop(t: ObjectTracker, first: int, last: int) -> None:
+    """Object `t` was not where its track says in frames first..last: those frames not seen, and it
+    lost (re-acquisition looks for it)."""
+    t.visible[first:last + 1] = False
+    t.center[first:last + 1] = np.nan
+    t.lost = True
+    t.pts, t.obj = np.zeros((0, 2), np.float32), np.zeros((0, 3))
+
+
+DISTRACTOR_NOTE = ("something moved where the objects cannot be (a person walking by, a shadow, a hand at the frame's "
+                   "edge?): it was left out of the tracking")
 
 
 # -- a video in which nothing moves --------------------------------------------------------------
@@ -313,7 +422,7 @@ def _end_part(indices: np.ndarray) -> np.ndarray:
                   MODEL_MAX_FRAMES)
 
 
-def _learn_scene(video: VideoStream, n: int, scale: float, bar) -> _SceneModels:
+def _learn_scene(video: Stabilised, n: int, scale: float, bar) -> _SceneModels:
     """The first pass: the background models (module docstring, step 1), frame 0, the noise,
     and which frames show the scene (frames that do not are left out of both models).
 
@@ -335,7 +444,7 @@ def _learn_scene(video: VideoStream, n: int, scale: float, bar) -> _SceneModels:
         else:
             if f == 1:
                 noise = noise_sd([first[2], small])
-            if not_the_scene(small, first[2], noise):
+            if not video.fits[f].shown or not_the_scene(small, first[2], noise):
                 shown[f] = False
                 continue
         if f in planned:
@@ -361,20 +470,29 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
     check_sees(cam, scene_points(scene))
     # the video must be the one the camera describes: its size, frame rate and length
     # (galileo.video.check_stream / check_length say why each is checked as it is)
-    video = VideoStream(video_path, cam, min_frames=2)
+    # registered to frame 0 against the background (the objects' starts left out) and to its exposure
+    video = Stabilised(VideoStream(video_path, cam, min_frames=2),
+                       exclude=dilate(_start_band(scene) | _target_start(scene), STABILISE_MARGIN_PX))
     n = int(cam.n_frames)   # the video's length (the first pass checks it)
     fps = cam.fps
     full_hw = (cam.height_px, cam.width_px)
     scale = work_scale(full_hw, MOG_SCALE)
     bar = tqdm(total=2 * n, desc="tracking", unit="frame", disable=not progress)
     models = _learn_scene(video, n, scale, bar)
-    notes = [note for note in (video.timing_note(),) if note]
+    notes = [note for note in (video.timing_note(),) if note] + video.notes()
     noise, bg_end, small0 = models.noise, models.bg_end, models.small0
     fg0_small = full_res(foreground(small0, bg_end, noise), full_hw)
-    if largest_component(fg0_small) is None and largest_component(full_res(models.fg_last, full_hw)) is None:
+    fg_last = full_res(models.fg_last, full_hw)
+    region = object_region(scene)
+    if largest_component((fg0_small | fg_last) & ~region) is not None:
+        notes.append(DISTRACTOR_NOTE)
+    # objects that move leave where they start; what moves elsewhere is no object of the scene
+    leaving = dilate(_start_band(scene) | _target_start(scene), REACQUIRE_PX)
+    if largest_component((fg0_small | fg_last) & leaving) is None:
         bar.close()   # nothing moves: evidence in itself (the ramp object holds on the ramp)
         tracks = held_still(scene, n, models.shown)
         tracks.notes.extend(notes + rarely_seen_notes(tracks.objects))
+        tracks.camera = video.motion().to_json()
         if debug_video is not None:
             write_debug_video(debug_video, (yuv_to_rgb(y, uv) for y, uv in video.yuv()), tracks, fps)
         return tracks
@@ -406,6 +524,11 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
             lo, hi = scene.priors.offset_units
             off = round(f0.s_along_m / scene.unit_m - scene.start_units)
             offsets[obj.name] = int(min(max(off, lo), hi))
+    agreed = _agreed(models, [m for m, _ in found.values()])
+    m_per_px = float(np.linalg.norm(cam.position_in_world) / cam.K[0, 0])   # a pixel's size at the ramp's foot
+    # re-acquisition looks where objects of the sizes measured can be
+    region = mask_at(object_region(scene, max(max(t.shape.size_m) for t in trackers)), small0.shape[:2])
+    absent = [0] * len(trackers)   # frames running each object's track showed the empty scene
     frames = video.yuv()
     prev, _ = next(frames)   # (frame 0: done above)
     last = 0                 # the frame prev is: the last that shows the scene
@@ -443,16 +566,25 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
                 m = len(t.pts)
                 t.pts, t.obj = new[start:start + m][ok[start:start + m]], t.obj[ok[start:start + m]]
                 start += m
+        small = yuv_image(gray, chroma, scale)
+        new_vs_start = foreground(small, small0, noise) > 0
+        # something is there: it differs from frame 0 where frame 0 shows the empty scene, from both frame 0
+        # and the scene's end elsewhere (where the objects start and end), and it is where objects can be
+        occupied = new_vs_start & (agreed | (foreground(small, bg_end, noise) > 0)) & region
         for k, t in enumerate(trackers):
             if not t.lost:
                 t.fit(f, preds[k])
-            if t.lost:  # re-acquire it among the moving pixels near where it should be
+                absent[k] = absent[k] + 1 if t.visible[f] and _absent(t, occupied, agreed) else 0
+                if absent[k] >= ABSENT_FRAMES:   # tracked where nothing is: lost since the streak began
+                    _drop(t, f - absent[k] + 1, f)
+                    absent[k] = 0
+            if t.lost:  # re-acquire it among the pixels where something is, near where it should be
                 if moving is None:
-                    # pixels that differ both from the scene's end and from its start
-                    small = yuv_image(gray, chroma, scale)
-                    moving = full_res(foreground(small, bg_end, noise) & foreground(small, small0, noise), full_hw)
-                near = dilate(predicted(k), REACQUIRE_PX)
-                blob = largest_component(moving & near & ~others_of(k))
+                    moving = full_res(occupied.astype(np.uint8) * 255, full_hw)
+                seen = np.flatnonzero(t.visible[:f])
+                lost_s = (f - (seen[-1] if len(seen) else 0)) / fps
+                near = dilate(predicted(k), REACQUIRE_PX + round(0.5 * REACQUIRE_G_MPS2 * lost_s ** 2 / m_per_px))
+                blob = _of_its_size(moving & ~others_of(k), near, np.count_nonzero(predicted(k)))
                 if blob is not None:
                     _relocate(scene, t, blob)
                     t.add_features(gray, blob)
@@ -473,8 +605,10 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
         centre_px = np.full((n, 2), np.nan)
         centre_px[vis] = cam.project(pos[vis])
         objects.append(ObjectTrack(obj.name, obj.role, pos, vel, vis.copy(), f0.shape, offsets.get(obj.name),
-                                   how, center_px=centre_px, features_px=t.features))
-    tracks = Tracks(fps, objects, notes + rarely_seen_notes(objects)).check()   # what `galileo track` writes
+                                   how, position_sd_m=position_noise(pos, vis, fps), center_px=centre_px,
+                                   features_px=t.features))
+    tracks = Tracks(fps, objects, notes + rarely_seen_notes(objects),   # what `galileo track` writes
+                    video.motion().to_json()).check()
     if debug_video is not None:
         write_debug_video(debug_video, (yuv_to_rgb(y, uv) for y, uv in video.yuv()), tracks, fps)
     return tracks

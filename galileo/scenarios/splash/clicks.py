@@ -30,8 +30,8 @@ import math
 import numpy as np
 
 from ...camera import FOCAL_PX, backproject_to_plane
-from ...clicks import (MAX_REPROJECTION_PX, Calibration, Field, NotFound, Point, camera_from_plane, check_quad,
-                       draw_clicks, draw_lines)
+from ...clicks import (DISTORTION, MAX_REPROJECTION_PX, Calibration, Field, NotFound, Point, camera_from_plane,
+                       check_quad, draw_clicks, draw_lines)
 from ...errors import GalileoError
 from ...fields import Bound
 from .scene import MAX_DROP_M, RELEASE_ABOVE_WATER_M, TANK_SIZE_M, Tank, default_scene
@@ -57,6 +57,7 @@ FIELDS = (
     Field("focal_px", "Focal", "px", None, "the camera's focal length in pixels; not given: estimated from the four "
           "corners (principal point at the image centre, square pixels; a tank seen straight from the front needs "
           "it: image width / (2 tan(horizontal field of view / 2)))", FOCAL_PX),
+    DISTORTION,
     Field("release_x_m", "Release x", "m", None, "where the object is let go (its centre), from the tank's middle "
           "towards the right; not given: found in the first frame", Bound(-TANK_SIZE_M.hi / 2, TANK_SIZE_M.hi / 2)),
     Field("release_height_m", "Release height", "m", None, "how far above the water the object's centre is let go "
@@ -85,7 +86,7 @@ def solve(uv: np.ndarray, v: dict, video_info, frames):
     corners = front_corners(sx, sy, sz)
     check_quad(uv[:4], ORDER[:4], FRONT)
     cam = camera_from_plane(uv[:4], corners, video_info, facing=np.array([0.0, -1.0, 0.0]), focal_px=v["focal_px"],
-                            what=FRONT)
+                            what=FRONT, k1=v["distortion"])
     on_glass = backproject_to_plane(cam, uv[4:], -sy / 2)
     for p, (x, _, _) in zip(POINTS[4:], on_glass):
         if abs(x) > sx / 2 * (1 + WATER_MARGIN):
@@ -100,9 +101,10 @@ def solve(uv: np.ndarray, v: dict, video_info, frames):
                                f"to {sz:g} m): click the water line along the front glass, after the four corners")
     elif level >= sz:
         raise GalileoError(f"--water-level-m {level:g} is not below the tank's height {sz:g} m")
-    ends = cam.project(np.array([[-sx / 2, -sy / 2, level], [sx / 2, -sy / 2, level]]))
+    # the water line is a line in the pinhole's image (a lens bends it): its points undistorted there
+    ends = cam.undistort_px(cam.project(np.array([[-sx / 2, -sy / 2, level], [sx / 2, -sy / 2, level]])))
     residuals = np.concatenate([np.linalg.norm(cam.project(corners) - uv[:4], axis=1),
-                                _distance_to_line_px(uv[4:], *ends)])
+                                _distance_to_line_px(cam.undistort_px(uv[4:]), *ends)])
     err = float(np.sqrt(np.mean(residuals ** 2)))
     if err > MAX_REPROJECTION_PX:
         raise GalileoError(f"the points disagree with the stated tank by {err:.1f} px (more than "

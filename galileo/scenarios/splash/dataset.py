@@ -30,7 +30,10 @@ write: its yaw_deg is 0 (the object's turn is not something a user measures; tru
 it) and the rest of what inference reads (camera, tank, water level, release point) is the
 truth; the object's kind, volume and area, the latents and priors there are replaced by the
 tracker's bottom-up ones and the video's priors when inference prepares the scene (the
-splash's `prepare`). truth.json also says the look (`look`). Deterministic per seed; built by `galileo.dataset.build`
+splash's `prepare`). truth.json also says the look (`look`). Filmed through a camera's effects
+(`galileo.footage`, the plan's camera; clean by default) the video is that camera's, scene.json's
+camera carries its lens (k1) and truth.json what the camera did ("camera"); the latents and the
+trajectory are the clean video's. Deterministic per seed; built by `galileo.dataset.build`
 (parallel, resumable) from `DATASET`.
 """
 from __future__ import annotations
@@ -88,6 +91,7 @@ class VideoSpec:
     obj: CatalogueObject
     seed: int
     demo: bool = False
+    camera: str = "clean"   # the camera effects it is filmed through (galileo.footage's name)
 
 
 @dataclass(frozen=True)
@@ -103,18 +107,20 @@ def _seed(seed: int, i: int) -> int:
     return int(np.random.SeedSequence([seed, i]).generate_state(1)[0])
 
 
-def plan(preset: str, seed: int = 0) -> list[VideoSpec]:
-    """The videos a preset renders (names, objects, per-video seeds)."""
+def plan(preset: str, seed: int = 0, camera: str = "clean") -> list[VideoSpec]:
+    """The videos a preset renders (names, objects, per-video seeds), filmed through `camera`'s
+    effects."""
     if preset not in PRESETS:
         raise GalileoError(f"unknown preset {preset!r}; expected one of {', '.join(PRESETS)}")
     if preset == "demo":
-        return [VideoSpec("demo", _demo_object(), seed, demo=True)]
+        return [VideoSpec("demo", _demo_object(), seed, demo=True, camera=camera)]
     objs = catalogue(seed)
     if preset in ("looks", "looks-small"):
         picks = range(len(objs)) if preset == "looks" else sorted(
             next(i for i, o in enumerate(objs) if o.material == m) for m in LOOKS_SMALL_PICKS)
         return [LookSpec(f"{i:03d}_{objs[i].name}", objs[i],
-                         int(np.random.SeedSequence([seed, LOOKS_STREAM, i]).generate_state(1)[0])) for i in picks]
+                         int(np.random.SeedSequence([seed, LOOKS_STREAM, i]).generate_state(1)[0]), camera=camera)
+                for i in picks]
     takes = 2
     if preset == "small":
         objs = [next(o for o in objs if o.material == m) for m in SMALL_PICKS]
@@ -122,7 +128,7 @@ def plan(preset: str, seed: int = 0) -> list[VideoSpec]:
     specs: list[VideoSpec] = []
     for obj in objs:
         for _ in range(takes):
-            specs.append(VideoSpec(f"{len(specs):03d}_{obj.name}", obj, _seed(seed, len(specs))))
+            specs.append(VideoSpec(f"{len(specs):03d}_{obj.name}", obj, _seed(seed, len(specs)), camera=camera))
     return specs
 
 
@@ -255,6 +261,7 @@ def truth_json(scene: SplashScene, traj) -> dict:
 
 def render_one(spec: VideoSpec, out_dir: str) -> dict:
     """Render one video folder; returns its index entry."""
+    from ...footage import Footage, effects_from_name
     from ...render import Look
     from .render import render_to_video
 
@@ -266,9 +273,15 @@ def render_one(spec: VideoSpec, out_dir: str) -> dict:
         scene, style = scene_for(spec), None
         look, written = Look.random(np.random.default_rng([spec.seed, 1])), scene
     n = scene.camera.n_frames
-    traj = render_to_video(scene, folder / "video.mp4", n, look=look, texture_seed=spec.seed, style=style)
+    footage = None if spec.camera == "clean" else Footage(effects_from_name(spec.camera), scene.camera, spec.seed)
+    traj = render_to_video(scene, folder / "video.mp4", n, look=look, texture_seed=spec.seed, style=style,
+                           footage=footage)
+    if footage is not None:
+        written = dataclasses.replace(written, camera=footage.camera)
     written.save(folder / "scene.json")
     truth = truth_json(scene, traj)
+    if footage is not None:
+        truth["camera"] = {"name": spec.camera, **footage.to_json()}
     if style is not None:
         truth["look"] = {**style.to_json(), "light": dataclasses.asdict(look), "tank": scene.tank.to_json(),
                          "camera_eye_m": [float(v) for v in scene.camera.position_in_world],
@@ -280,7 +293,7 @@ def render_one(spec: VideoSpec, out_dir: str) -> dict:
             "release_s": scene.release_s, "push_mps": scene.push_mps, "n_frames": n}
 
 
-DATASET = dataset.DatasetSpec("splash", PRESETS, plan, render_one,
+DATASET = dataset.DatasetSpec("splash", PRESETS, plan, render_one, cameras=True,
                               describe="objects dropped into a tank of water: demo (1 video), small (8), full (72); "
                                        "in a second look: looks (36), looks-small (12)")
 

@@ -137,6 +137,9 @@ def run_video(folder: Path, config: RunConfig, executor=None) -> dict:
     t1 = time.perf_counter()
     found = tracks.objects[0].bottom_up if tracks.objects else {}
     rec["bottom_up"] = {k: found.get(k) for k in ("kind", "volume_cm3", "volume_log_sd", "kind_probs", "release_s")}
+    rec["track_notes"] = list(tracks.notes)   # what tracking wants known (the camera moved, a distractor, ...)
+    if tracks.camera:
+        rec["camera"] = dict(tracks.camera)
     try:
         res = infer(scene, tracks, config, executor=executor, progress=False)
     except GalileoError as e:

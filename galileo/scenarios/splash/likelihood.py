@@ -12,7 +12,9 @@ release (a negative step) show the object held still at the release point.
 Units: the seed fixes Sigma = 1 without units. Here it is 1 in the video's own units: one
 pixel for positions and one pixel per frame for velocities (the tracker's resolution), so
 sigma_x = sigma_px * m_per_px and sigma_v = sigma_px * m_per_px * fps, where m_per_px is the
-size of a pixel at the release point's depth (depth / focal length). `sigma_px` = 1.
+size of a pixel at the release point's depth (depth / focal length). `sigma_px` = 1, or more: the
+tracker's own measure of its position noise (`Tracks.position_noise_m`, from the track's
+roughness: a shaken, noisy, compressed or blurred video's) in pixels where that is larger.
 
 The likelihood stands on `galileo.framelik.FrameLikelihood`, with a tick of one physics step
 (the release shifts which steps the frames show; frames before it are its `before_start`;
@@ -128,6 +130,9 @@ class SplashLikelihood(FrameLikelihood):
                          sim_latents=[n for n in LATENT_NAMES if n != "release_s"],
                          rest=RestRule(every=self.spf), motions=cache_size)
         mpp = metres_per_pixel(scene)
+        # at least the noise the tracker measured on its own track (a shaken, noisy or compressed video's), so
+        # that intervals widen instead of lying
+        self.sigma_px = max(self.sigma_px, tracks.position_noise_m() / mpp)
         self.sigma_x_m = self.sigma_px * mpp
         self.sigma_v_mps = self.sigma_px * mpp * self.fps
         obj = tracks.objects[0]

@@ -25,9 +25,14 @@ colour, the camera's white balance).
 
 Frames are in video time (`Simulator.run`): before the scene's release_s the object is held
 still at the release point; a release before frame 0 is simulated but not shown.
+
+A video may be filmed through a real camera's effects (`galileo.footage`: `render_to_video`'s
+footage), with motion blur from renders of the physics steps around each frame
+(`Renderer.render`'s blur).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,10 +40,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ...camera import steps_per_frame
 from ...datatypes import Trajectory
 from ...errors import GalileoError
-from ...render import (DEFAULT_LOOK, FAR_M, NEAR_M, Look, block_texture, camera_image, gl_view_projection,
-                       grain_texture, load_texture)
+from ...footage import Footage
+from ...render import (DEFAULT_LOOK, FAR_M, NEAR_M, Look, average_renders, block_texture, camera_image,
+                       gl_view_projection, grain_texture, load_texture)
 from ...sim.bullet import pb
 from .physics import Simulator
 from .scene import SplashScene
@@ -296,32 +303,44 @@ class Renderer:
         self._cache = (d, *parts)
         return parts
 
-    def render_current(self, frame_index: int = 0, with_segmentation: bool = False):
-        """Render the world as it is now: RGB uint8 (H, W, 3) [, segmentation (H, W) of body ids]."""
-        lk, cam = self.look, self.cam
-        h, w = cam.height_px, cam.width_px
-        rgba, depth, seg = camera_image(cam, self.view, self.proj, lk, self.sim.world.cid)
+    def _sharp(self) -> tuple[np.ndarray, np.ndarray]:
+        """The world as it is now with its water and glass, before the camera's exposure: RGB
+        float (H * W, 3), segmentation (H, W) of body ids."""
+        rgba, depth, seg = camera_image(self.cam, self.view, self.proj, self.look, self.sim.world.cid)
         img = rgba.reshape(-1, 4)[:, :3].astype(float)
         alpha, surface, waterline, glass = self._tint(depth)
         img += alpha[:, None] * (WATER_RGB - img)
         img[surface] += SHEEN * (SHEEN_RGB - img[surface])
         img[waterline] *= WATERLINE_DARK
         img[glass] += GLASS_TINT * (GLASS_RGB - img[glass])
+        return img, seg
+
+    def _exposed(self, img: np.ndarray, frame_index: int) -> np.ndarray:
+        """`_sharp`'s image (or a blurred frame's mean of them) through the look's drift and noise
+        and the style's gains in video frame `frame_index`: RGB uint8 (H, W, 3)."""
+        lk, cam = self.look, self.cam
         img = img * lk.gain(frame_index)
         if self.style is not None:
             img *= np.asarray(self.style.rgb_gain)
         if lk.noise_sd:
             img += self._noise_rng.normal(0, lk.noise_sd, img.shape)
-        rgb = np.clip(img + 0.5, 0, 255).astype(np.uint8).reshape(h, w, 3)
+        return np.clip(img + 0.5, 0, 255).astype(np.uint8).reshape(cam.height_px, cam.width_px, 3)
+
+    def render_current(self, frame_index: int = 0, with_segmentation: bool = False):
+        """Render the world as it is now: RGB uint8 (H, W, 3) [, segmentation (H, W) of body ids]."""
+        img, seg = self._sharp()
+        rgb = self._exposed(img, frame_index)
         if with_segmentation:
             return rgb, seg
         return rgb
 
     def render(self, n_frames: int, values: dict[str, float] | None = None, on_image=None,
-               with_segmentation: bool = False) -> Trajectory:
+               with_segmentation: bool = False, blur: tuple[int, np.ndarray] | None = None) -> Trajectory:
         """Simulate from the release and render `n_frames` video frames (in video time, see
         `Simulator.run`); on_image(frame, rgb[, seg]) for each. Returns the trajectory of the
-        shown frames."""
+        shown frames. blur: motion blur's sampling (n, k) (`galileo.render.blur_offsets`, n the
+        physics steps a frame): frame f the mean of the renders at steps n f + k of video time
+        (those before frame 0 drawn at frame 0), seg frame f's own."""
         release_s = (values or {}).get("release_s", self.scene.release_s)
         if self.scene.frame_ticks(release_s)[1]:
             raise GalileoError(f"rendering needs the release on the physics grid (a whole number of 1/{self.scene.sim_hz:g} s "
@@ -329,27 +348,74 @@ class Renderer:
                                "not the states between them")
         cid = self.sim.world.cid
 
-        def on_frame(i, pos, vel):
+        def texture(i):
             if i == 0:   # the object's body is made for the run: texture it before the first frame
                 self.body_id = self.sim.world.body
                 pb.changeVisualShape(self.body_id, -1, rgbaColor=[1, 1, 1, 1], textureUniqueId=self.texture,
                                      physicsClientId=cid)
-            out = self.render_current(i, with_segmentation)
-            if on_image is not None:
-                on_image(i, *out) if with_segmentation else on_image(i, out)
+
+        if blur is None:
+            def on_frame(i, pos, vel):
+                texture(i)
+                out = self.render_current(i, with_segmentation)
+                if on_image is not None:
+                    on_image(i, *out) if with_segmentation else on_image(i, out)
+                return False
+
+            return self.sim.run(n_frames, values, on_frame=on_frame)
+
+        # the run at one sample a physics step: its scene's camera at sub times the fps (the same
+        # steps from the release; frame f is sample sub f)
+        sub, offsets = blur
+        lo, hi = int(offsets.min()), int(offsets.max())
+        cam = self.scene.camera
+        fine = dataclasses.replace(self.scene, camera=dataclasses.replace(
+            cam, fps=sub * cam.fps, n_frames=sub * (n_frames - 1) + hi + 1))
+        sharp: dict[int, tuple[np.ndarray, np.ndarray]] = {}   # sample -> its render, while a frame needs it
+
+        def on_sample(j, pos, vel):
+            texture(j)
+            if j == 0 or any((j - int(k)) % sub == 0 for k in offsets):
+                sharp[j] = self._sharp()
+            f, r = divmod(j - hi, sub)
+            if r == 0 and 0 <= f < n_frames:
+                img = average_renders([sharp[max(0, sub * f + int(k))][0] for k in offsets])
+                rgb = self._exposed(img.astype(float), f)
+                if on_image is not None:
+                    on_image(f, rgb, sharp[sub * f][1]) if with_segmentation else on_image(f, rgb)
+                for old in [i for i in sharp if i < sub * (f + 1) + lo]:
+                    del sharp[old]
             return False
 
-        return self.sim.run(n_frames, values, on_frame=on_frame)
+        traj = Simulator(fine, visual=True).run(fine.camera.n_frames, values, on_frame=on_sample)
+        frames = slice(0, sub * (n_frames - 1) + 1, sub)
+        return Trajectory(cam.fps, traj.names, traj.position_m[:, frames], traj.velocity_mps[:, frames],
+                          traj.orientation_xyzw[:, frames])
 
 
 def render_to_video(scene: SplashScene, path: str | Path, n_frames: int, look: Look | None = None,
                     texture_seed: int = 0, values: dict[str, float] | None = None,
-                    style: Style | None = None) -> Trajectory:
-    """Render the scene to an H.264 MP4 of `n_frames` frames (in the default look, or `style`'s);
-    the shown frames' trajectory."""
+                    style: Style | None = None, footage: Footage | None = None) -> Trajectory:
+    """Render the scene to an H.264 MP4 of `n_frames` frames (in the default look, or `style`'s;
+    through `footage`'s camera effects, with its motion blur, if given: rendered through its
+    `render_camera`); the shown frames' trajectory."""
     from ...video import write_video
 
     frames: list[np.ndarray] = []
-    traj = Renderer(scene, look, texture_seed, style=style).render(n_frames, values, on_image=lambda f, rgb: frames.append(rgb))
-    write_video(path, frames, scene.fps)
+    if footage is None:
+        renderer = Renderer(scene, look, texture_seed, style=style)
+        traj = renderer.render(n_frames, values, on_image=lambda f, rgb: frames.append(rgb))
+        write_video(path, frames, scene.fps)
+        return traj
+    cam = footage.render_camera
+    renderer = Renderer(dataclasses.replace(scene, camera=cam), look, texture_seed, style=style)
+    objects = np.zeros((cam.height_px, cam.width_px), bool)
+
+    def keep(f, rgb, seg):
+        frames.append(rgb)
+        objects[seg == renderer.body_id] = True
+
+    traj = renderer.render(n_frames, values, on_image=keep, with_segmentation=True,
+                           blur=footage.blur_sampling(steps_per_frame(scene.sim_hz, scene.fps)))
+    write_video(path, footage.frames(frames, objects), scene.fps, bitrate_kbps=footage.bitrate_kbps)
     return traj

@@ -1,5 +1,10 @@
 """Splash tracking: pixels -> the object's positions, velocities, shape kind and volume.
 
+0. Stabilisation (`galileo.vision.stabilise`): every frame registered to frame 0 against the
+   tank and the wall (the column the object falls through, `fall_column`, left out) and brought
+   to its exposure and white balance; what it removed goes in `Tracks.camera` and, where it is
+   much, in a note. The object is looked for in that column only: what moves elsewhere (a
+   person walking by, a shadow, a hand) is left out, with a note (`DISTRACTOR_NOTE`).
 1. Background: MOG2 (five components, `galileo.vision.background`) learned backwards over
    the whole video gives the tank as the video ends, with the object where it comes to
    rest. Frame 0 against the median of the last frames (`_start_and_rest`) shows where the
@@ -26,7 +31,9 @@
    object could move in the time between them (MAX_SPEED_MPS on the release plane) is
    dropped, the frame left without one. Back-projected onto the plane y = release_m[1]
    (the object falls straight down) it gives positions in metres; velocities by central
-   differences (`galileo.vision.velocity`). Frames without either are `visible: false`.
+   differences (`galileo.vision.velocity`). Frames without either are `visible: false`. The
+   track's own position noise (`position_sd_m`, from its third differences where it moves: a
+   blurred, compressed or shaken video's is larger) is the likelihood's least noise.
 5. Bottom-up kind and volume (`bottom_up`), measured on up to BOTTOM_UP_MAX_FRAMES
    silhouettes of the object in the air (its bottom AIR_MARGIN_PX above the water line),
    evenly spaced (a falling object may turn): each fitted (least 1 - IoU) by each kind at
@@ -79,9 +86,10 @@ from ...vision.background import (MODEL_MAX_FRAMES, blobs, clean, dilate, erode,
 from ...vision.draw import draw_tracks
 from ...vision.klt import flow, klt_window, seed_features
 from ...vision.pose import rot_y
-from ...vision.silhouette import crop, fit_silhouette, shape_silhouette
+from ...vision.silhouette import crop, fit_silhouette, project_silhouette, shape_silhouette
 from ...vision.tracker import rarely_seen_notes
-from ...vision.velocity import velocity_from_positions
+from ...vision.stabilise import Stabilised
+from ...vision.velocity import position_noise, velocity_from_positions
 from .scene import CM3, KINDS
 
 EARLY_FRAMES = 4           # the resting place's background: median of at most this many first frames
@@ -105,6 +113,12 @@ HOLD_PX = 2.0              # held: the centre within this of where it was first 
 BOUNDARY_PX = 0.5          # a silhouette's outline is known to this (px): the kinds' fits resolve no finer
 DEPTH_LOG_SD = {"box": math.log(2.0) / 1.645, "vcyl": math.log(1.2) / 1.645, "hcyl": math.log(1.5) / 1.645}
 DEBUG_COLORS = {"object": (255, 200, 0)}   # debug video (RGB)
+FALL_HALF_WIDTH_M = 0.1    # the object falls within this of the release point's x (either side) ...
+FALL_ABOVE_M = 0.1         # ... from up to this above it to the tank's floor: it is looked for there only (what
+# moves elsewhere, a person walking by, a shadow on the wall, a hand at the frame's edge, is not the object), and
+# stabilisation registers on the rest
+DISTRACTOR_NOTE = ("something moved where the object cannot be (a person walking by, a shadow, a hand at the frame's "
+                   "edge?): it was left out of the tracking")
 AREA_OK = (0.6, 1.6)       # a silhouette is usable within these ratios of the fitted shape's area
 MAX_SPEED_MPS = 3.0        # a centre farther than this x the time since the last one from it is dropped
                            # (free fall from the highest release reaches ~2 m/s at the water)
@@ -262,7 +276,7 @@ def background(sample: list[np.ndarray], early: list[np.ndarray], late: list[np.
     return bg
 
 
-def _learn_tank(video: VideoStream, n: int, scale: float, bar, water_row: float):
+def _learn_tank(video: Stabilised, n: int, scale: float, bar, water_row: float):
     """The first pass: (the background, the noise, which frames show the scene). Frames that
     show something else (`not_the_scene`) are left out of the background; the frames it is
     learned from are kept in this pass (taken in another from the frames that show the scene,
@@ -276,7 +290,7 @@ def _learn_tank(video: VideoStream, n: int, scale: float, bar, water_row: float)
         img = yuv_image(y, uv, scale)
         if f == 1:
             noise = noise_sd([early[0], img])
-        if f and not_the_scene(img, early[0], noise):
+        if f and (not video.fits[f].shown or not_the_scene(img, early[0], noise)):
             shown[f] = False
             continue
         if len(early) < EARLY_FRAMES:
@@ -305,7 +319,8 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
                            "z forward)")
     # the video must be the one the camera describes: its size, frame rate and length
     # (galileo.video.check_stream / check_length say why each is checked as it is)
-    video = VideoStream(video_path, cam, min_frames=3)
+    region = fall_column(scene)
+    video = Stabilised(VideoStream(video_path, cam, min_frames=3), exclude=region)
     n = int(cam.n_frames)
     hw = (cam.height_px, cam.width_px)
     scale = work_scale(hw, 1.0)
@@ -316,12 +331,16 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     water_row = float(cam.project(np.array([release[0], y_plane, water]))[1]) * scale
     bar = tqdm(total=(3 if debug_video is not None else 2) * n, desc="tracking", unit="frame", disable=not progress)
     bg, noise, shown = _learn_tank(video, n, scale, bar, water_row)
+    elsewhere = [False]   # whether something moved outside the region
 
     def silhouettes():
-        """Per frame: (luma, the object's silhouette at full resolution or None)."""
+        """Per frame: (luma, the object's silhouette at full resolution or None), looked for where the
+        object can be."""
         for i, (y, uv) in enumerate(video.yuv()):
             fg = full_res(foreground(yuv_image(y, uv, scale), bg, noise), hw) if shown[i] else None
-            yield y, None if fg is None else largest_component(fg)
+            if fg is not None and not elsewhere[0] and largest_component(fg & ~region) is not None:
+                elsewhere[0] = True
+            yield y, None if fg is None else largest_component(fg & region)
 
     # the shape to centre silhouettes on: the first usable silhouettes
     first = []
@@ -412,10 +431,13 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     found.update(_release(centre, visible, cam.fps))
     shape, _ = _shape(kind, w, h)
     vel = velocity_from_positions(pos, visible, cam.fps)
-    obj = ObjectTrack(scene.obj.name, "object", pos, vel, visible, shape, None, "motion", found, centre, features)
-    notes = [note for note in (video.timing_note(),) if note] + notes + rarely_seen_notes([obj])
+    obj = ObjectTrack(scene.obj.name, "object", pos, vel, visible, shape, None, "motion", found, centre, features,
+                      position_sd_m=position_noise(pos, visible, cam.fps))
+    notes = [note for note in (video.timing_note(),) if note] + video.notes() + notes + rarely_seen_notes([obj])
+    if elsewhere[0]:
+        notes.append(DISTRACTOR_NOTE)
     notes += _track_notes(obj, pos, visible, release, water, h, jumps, m_per_px)
-    tracks = Tracks(cam.fps, [obj], notes).check()   # what `galileo track` writes, `Tracks.load` reads
+    tracks = Tracks(cam.fps, [obj], notes, video.motion().to_json()).check()   # what `galileo track` writes
     if debug_video is not None:
         write_video(debug_video, (draw_tracks(yuv_to_rgb(y, uv), tracks, f, DEBUG_COLORS)
                                   for f, (y, uv) in enumerate(_counted(video.yuv(), bar))), cam.fps)
@@ -482,6 +504,19 @@ def _track_notes(obj, pos: np.ndarray, visible: np.ndarray, release: np.ndarray,
                      f"frame{'s' if jumps > 1 else ''}: those were left out (another moving thing, or a ghost "
                      f"of the object in the background)")
     return notes
+
+
+def _box_mask(cam, lo, hi) -> np.ndarray:
+    """The image region (boolean) of the world box lo..hi (its corners' projected hull)."""
+    corners = np.array([(x, y, z) for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    return project_silhouette(cam, corners, np.eye(3), np.zeros(3)) > 0
+
+
+def fall_column(scene) -> np.ndarray:
+    """Where the object falls (boolean image): within FALL_HALF_WIDTH_M of the release point's x, from
+    FALL_ABOVE_M above it down to the tank's floor, across the tank's depth."""
+    (rx, _, rz), sy = scene.release_m, scene.tank.size_m[1]
+    return _box_mask(scene.camera, (rx - FALL_HALF_WIDTH_M, -sy / 2, 0.0), (rx + FALL_HALF_WIDTH_M, sy / 2, rz + FALL_ABOVE_M))
 
 
 def scene_points(scene) -> dict[str, np.ndarray]:

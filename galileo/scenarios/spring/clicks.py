@@ -51,13 +51,16 @@ from ...camera import (
     physics_hz,
 )
 from ...clicks import (
+    DISTORTION,
     Calibration,
     Field,
     NameField,
     Point,
+    centred_intrinsics,
     draw_clicks,
     draw_lines,
     line_width,
+    pinhole_clicks,
     rms_px,
 )
 from ...errors import GalileoError
@@ -96,6 +99,7 @@ FIELDS = (
     Field("focal_px", "Focal", "px", None, "the camera's focal length in pixels; not given: the image width / "
           f"(2 tan({DEFAULT_HFOV_DEG / 2:g} deg)), a {DEFAULT_HFOV_DEG:g} deg horizontal field of view (it sets only "
           "how far away the camera stands)", FOCAL_PX),
+    DISTORTION,
 )
 
 
@@ -110,11 +114,15 @@ def roll_deg(top_px, below_px) -> float:
     return math.degrees(math.atan2(dx, dy))
 
 
-def camera_from_clicks(uv, video_info, *, length_m: float | None = None, focal_px: float | None = None) -> Camera:
+def camera_from_clicks(uv, video_info, *, length_m: float | None = None, focal_px: float | None = None,
+                       k1: float = 0.0) -> Camera:
     """The fronto-parallel camera of the module's model from the four clicks (their count,
     place in the frame and distinctness are `Calibration.check_clicks`'), the hanging point at
-    the scene's default `top_in_world_m`; `length_m` None: at NOMINAL_DISTANCE_M."""
-    top_px, below_px, start_px, end_px = np.asarray(uv, float)
+    the scene's default `top_in_world_m`; `length_m` None: at NOMINAL_DISTANCE_M; through a
+    lens of distortion k1 (the clicks undistorted first: `pinhole_clicks`)."""
+    w, h = video_info.width_px, video_info.height_px
+    f = default_focal_px(w) if focal_px is None else float(focal_px)
+    top_px, below_px, start_px, end_px = pinhole_clicks(np.asarray(uv, float), video_info, f, k1)
     line_px, seg_px = np.linalg.norm(below_px - top_px), np.linalg.norm(end_px - start_px)
     for what, n in (("top and hanging line points", line_px), ("two scale points", seg_px)):
         if n < MIN_LINE_PX:
@@ -128,18 +136,16 @@ def camera_from_clicks(uv, video_info, *, length_m: float | None = None, focal_p
         raise GalileoError(f"the hanging line is {abs(roll):.0f} deg from the image's vertical (more than "
                            f"{MAX_ROLL_DEG:g}): click a point straight below the hanging point (a video on its side "
                            "must be turned upright first)")
-    w, h = video_info.width_px, video_info.height_px
-    f = default_focal_px(w) if focal_px is None else float(focal_px)
     distance_m = NOMINAL_DISTANCE_M if length_m is None else f * length_m / seg_px
     dx, dy = (below_px - top_px) / line_px              # the image of the world's -z
     # rows: the camera's x (image right), y (image down) and z (forward) axes in the world frame
     r = np.array([[dy, 0.0, -dx], [-dx, 0.0, -dy], [0.0, 1.0, 0.0]])
-    k = np.array([[f, 0.0, w / 2], [0.0, f, h / 2], [0.0, 0.0, 1.0]])
+    k = centred_intrinsics(f, w, h)
     top = np.asarray(SpringScene.top_in_world_m, float)
     top_in_camera = np.r_[(top_px - k[:2, 2]) * distance_m / f, distance_m]
     m = np.eye(4)
     m[:3, :3], m[:3, 3] = r, top_in_camera - r @ top
-    cam = Camera(k, m, int(w), int(h), float(video_info.fps), int(video_info.n_frames))
+    cam = Camera(k, m, int(w), int(h), float(video_info.fps), int(video_info.n_frames), float(k1))
     if np.linalg.norm(cam.position_in_world) > CAMERA_DISTANCE_M:
         raise GalileoError(f"a {length_m:g} m segment {seg_px:.0f} px long puts the camera {distance_m:.0f} m from "
                            "the spring: check --length-m (in metres) and --focal-px")
@@ -149,19 +155,20 @@ def camera_from_clicks(uv, video_info, *, length_m: float | None = None, focal_p
 def solve(uv: np.ndarray, v: dict, video_info, frames):
     """The calibration's solver: the camera from the clicks, the scene around it (nothing is
     looked for in the frames). The error: the RMS distance (pixels) of the hanging point's
-    click from where the camera puts it and of the hanging line's from that line's image, 0 up
-    to rounding (see the module)."""
-    cam = camera_from_clicks(uv, video_info, length_m=v["length_m"], focal_px=v["focal_px"])
+    click from where the camera puts it and of the hanging line's from that line's image (a
+    line in the pinhole's image: measured there, the click undistorted), 0 up to rounding (see
+    the module)."""
+    cam = camera_from_clicks(uv, video_info, length_m=v["length_m"], focal_px=v["focal_px"], k1=v["distortion"])
     fps = float(video_info.fps)
     scene = SpringScene(object=v["object"], spring=v["spring"], hang_m=v["hang_m"], metric=v["length_m"] is not None,
                         fps=fps, n_frames=int(video_info.n_frames), sim_hz=physics_hz(SpringScene.sim_hz, fps, SIM_HZ),
                         camera=cam)
     scene.validate()
     top = np.asarray(scene.top_in_world_m, float)
-    a, b = cam.project(np.array([top, top - (0.0, 0.0, 1.0)]))
-    (dx, dy), (wx, wy) = (b - a) / np.linalg.norm(b - a), uv[1] - a
+    a, b = cam.undistort_px(cam.project(np.array([top, top - (0.0, 0.0, 1.0)])))
+    (dx, dy), (wx, wy) = (b - a) / np.linalg.norm(b - a), cam.undistort_px(uv[1]) - a
     off_line = abs(float(dx * wy - dy * wx))
-    return scene, rms_px(np.array([np.linalg.norm(a - uv[0]), off_line]))
+    return scene, rms_px(np.array([np.linalg.norm(cam.project(top) - uv[0]), off_line]))
 
 
 def describe(scene, v: dict) -> str:
