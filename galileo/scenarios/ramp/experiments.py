@@ -139,6 +139,14 @@ def run_video(folder: Path, config: RunConfig, executor=None) -> dict:
     return rec
 
 
+def _spearman(pairs: list[tuple[float, float]]) -> float | None:
+    """Spearman's correlation of the (predicted, true) pairs; None with fewer than three or where
+    either side is constant (it is undefined there)."""
+    if len(pairs) < 3 or any(len(set(side)) < 2 for side in zip(*pairs)):
+        return None
+    return float(spearmanr(*zip(*pairs)).statistic)
+
+
 def summarise(records: list[dict]) -> dict:
     """The paper's numbers over the records (see the module)."""
     fitted = [r for r in records if r.get("status") == "fitted"]
@@ -167,7 +175,7 @@ def summarise(records: list[dict]) -> dict:
             "converged": int(sum(bool(r.get("converged")) for r in fitted)),
             "which_is_heavier": {"scored": len(heavy), "right": int(sum(heavy_ok)),
                                  "accuracy": float(np.mean(heavy_ok)) if heavy_ok else None},
-            "mass_ratio_spearman": (float(spearmanr(*zip(*ratio)).statistic) if len(ratio) >= 3 else None),
+            "mass_ratio_spearman": _spearman(ratio),
             "moving_read_as_still": sum(r["moves"] and not r["tracked_moves"] for r in tracked),
             "still_read_as_moving": sum(not r["moves"] and r["tracked_moves"] for r in tracked),
             "will_it_move": {"scored": len(wim), "right": int(sum(wim_ok)),

@@ -89,8 +89,8 @@ from ...vision.draw import draw_tracks
 from ...vision.klt import flow
 from ...vision.pose import rot_y
 from ...vision.silhouette import fill_polygon, fit_silhouette, project_silhouette, slide_silhouette
-from ...vision.tracker import ObjectTracker, rarely_seen_notes
 from ...vision.stabilise import Stabilised
+from ...vision.tracker import ObjectTracker, rarely_seen_notes
 from ...vision.velocity import position_noise, velocity_from_positions
 from .scene import Scene
 
@@ -109,9 +109,11 @@ RELOCATE_RANGE_M = 0.05    # ... and how far along its support the object may be
 OTHERS_MARGIN_PX = 9       # features keep off other objects' predicted silhouettes grown by this
 REACQUIRE_PX = 31          # a lost object is searched for in its predicted silhouette grown by this
 RESEED_ERODE_PX = 5        # re-seeding stays this far inside the predicted silhouette
-REACQUIRE_AREA_RATIO = 4.0 # ... among blobs from a quarter to four times the area of its silhouette
+REACQUIRE_AREA_RATIO = 4.0 # ... among blobs at most four times the area of its silhouette
 REACQUIRE_G_MPS2 = 9.81    # ... grown by how far from its constant-velocity prediction an object accelerated at
-# up to g can be after the frames it has been lost (1/2 g t^2, in pixels at the ramp's foot)
+REACQUIRE_MAX_M = 0.15     # up to g can be after the frames it has been lost (1/2 g t^2, at most this; in pixels at
+# the ramp's foot), and no further back (up the ramp, or back along the ground) than
+REACQUIRE_BACK_M = 0.03    # this from where it was last seen
 PRESENT_MIN_FRACTION = 0.1 # a tracked object is there when at least this share of its silhouette (outside every
 # object's start) differs from the empty scene ...
 ABSENT_FRAMES = 2          # ... and lost when it is not, this many frames running: those frames are marked not
@@ -291,13 +293,23 @@ def _target_start(scene: Scene) -> np.ndarray:
     return _scene_mask(scene, 1) if scene.target is not None else np.zeros(hw, bool)
 
 
+def _downhill_of(scene: Scene, x_m: float) -> np.ndarray:
+    """The image where the fall-line plane's x is at least `x_m` (boolean): down the ramp and on
+    along the ground from there, at any height."""
+    cam = scene.camera
+    hw = (cam.height_px, cam.width_px)
+    ys, xs = np.mgrid[0:hw[0]:8, 0:hw[1]:8]
+    world = backproject_to_plane(cam, np.c_[xs.ravel(), ys.ravel()].astype(float), 0.0)
+    return mask_at((world[:, 0] >= x_m).reshape(xs.shape), hw)
+
+
 def _of_its_size(mask: np.ndarray, near: np.ndarray, area_px: int) -> np.ndarray | None:
-    """The largest component of `mask` whose centre lies in `near` and whose whole area is within
-    REACQUIRE_AREA_RATIO of `area_px`, as a convex silhouette (None if none is): a person walking by,
-    a shadow or a hand reaching into the search window is larger than it, however much of it the
-    window holds."""
-    ok = [b for b in blobs(mask, 0.0) if 1 / REACQUIRE_AREA_RATIO <= np.count_nonzero(b) / max(area_px, 1)
-          <= REACQUIRE_AREA_RATIO and near[tuple(np.round(np.argwhere(b).mean(axis=0)).astype(int))]]
+    """The largest component of `mask` whose centre lies in `near` and whose whole area is at most
+    REACQUIRE_AREA_RATIO times `area_px`, as a convex silhouette (None if none is): a person walking
+    by, a shadow or a hand reaching into the search window is larger than the object, however much
+    of it the window holds (a smaller one may be the part of a slow object that has left its start)."""
+    ok = [b for b in blobs(mask, 0.0) if np.count_nonzero(b) <= REACQUIRE_AREA_RATIO * area_px
+          and near[tuple(np.round(np.argwhere(b).mean(axis=0)).astype(int))]]
     return largest_component(max(ok, key=np.count_nonzero)) if ok else None
 
 
@@ -583,7 +595,10 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
                     moving = full_res(occupied.astype(np.uint8) * 255, full_hw)
                 seen = np.flatnonzero(t.visible[:f])
                 lost_s = (f - (seen[-1] if len(seen) else 0)) / fps
-                near = dilate(predicted(k), REACQUIRE_PX + round(0.5 * REACQUIRE_G_MPS2 * lost_s ** 2 / m_per_px))
+                grow = min(0.5 * REACQUIRE_G_MPS2 * lost_s ** 2, REACQUIRE_MAX_M) / m_per_px
+                near = dilate(predicted(k), REACQUIRE_PX + round(grow))
+                if len(seen):   # objects go down the ramp and on along the ground, never back
+                    near &= _downhill_of(scene, t.center[seen[-1]][0] - REACQUIRE_BACK_M)
                 blob = _of_its_size(moving & ~others_of(k), near, np.count_nonzero(predicted(k)))
                 if blob is not None:
                     _relocate(scene, t, blob)

@@ -87,8 +87,8 @@ from ...vision.draw import draw_tracks
 from ...vision.klt import flow, klt_window, seed_features
 from ...vision.pose import rot_y
 from ...vision.silhouette import crop, fit_silhouette, project_silhouette, shape_silhouette
-from ...vision.tracker import rarely_seen_notes
 from ...vision.stabilise import Stabilised
+from ...vision.tracker import rarely_seen_notes
 from ...vision.velocity import position_noise, velocity_from_positions
 from .scene import CM3, KINDS
 
