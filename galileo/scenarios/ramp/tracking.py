@@ -293,14 +293,10 @@ def _target_start(scene: Scene) -> np.ndarray:
     return _scene_mask(scene, 1) if scene.target is not None else np.zeros(hw, bool)
 
 
-def _downhill_of(scene: Scene, x_m: float) -> np.ndarray:
-    """The image where the fall-line plane's x is at least `x_m` (boolean): down the ramp and on
-    along the ground from there, at any height."""
-    cam = scene.camera
-    hw = (cam.height_px, cam.width_px)
-    ys, xs = np.mgrid[0:hw[0]:8, 0:hw[1]:8]
-    world = backproject_to_plane(cam, np.c_[xs.ravel(), ys.ravel()].astype(float), 0.0)
-    return mask_at((world[:, 0] >= x_m).reshape(xs.shape), hw)
+def _x_in_plane(cam) -> np.ndarray:
+    """Each pixel's x in the fall-line plane (y = 0; metres, (H, W)): where its ray meets it."""
+    ys, xs = np.mgrid[0:cam.height_px, 0:cam.width_px]
+    return backproject_to_plane(cam, np.c_[xs.ravel(), ys.ravel()].astype(float), 0.0)[:, 0].reshape(xs.shape)
 
 
 def _of_its_size(mask: np.ndarray, near: np.ndarray, area_px: int) -> np.ndarray | None:
@@ -540,6 +536,7 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
     m_per_px = float(np.linalg.norm(cam.position_in_world) / cam.K[0, 0])   # a pixel's size at the ramp's foot
     # re-acquisition looks where objects of the sizes measured can be
     region = mask_at(object_region(scene, max(max(t.shape.size_m) for t in trackers)), small0.shape[:2])
+    x_in_plane = None              # each pixel's x in the fall-line plane (made when an object is first lost)
     absent = [0] * len(trackers)   # frames running each object's track showed the empty scene
     frames = video.yuv()
     prev, _ = next(frames)   # (frame 0: done above)
@@ -598,7 +595,9 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
                 grow = min(0.5 * REACQUIRE_G_MPS2 * lost_s ** 2, REACQUIRE_MAX_M) / m_per_px
                 near = dilate(predicted(k), REACQUIRE_PX + round(grow))
                 if len(seen):   # objects go down the ramp and on along the ground, never back
-                    near &= _downhill_of(scene, t.center[seen[-1]][0] - REACQUIRE_BACK_M)
+                    if x_in_plane is None:
+                        x_in_plane = _x_in_plane(cam)
+                    near &= x_in_plane >= t.center[seen[-1]][0] - REACQUIRE_BACK_M
                 blob = _of_its_size(moving & ~others_of(k), near, np.count_nonzero(predicted(k)))
                 if blob is not None:
                     _relocate(scene, t, blob)

@@ -80,7 +80,7 @@ from ...errors import GalileoError, StillVideo
 from ...progress import tqdm
 from ...shapes import Box, Cylinder
 from ...video import VideoStream, write_video, yuv_to_rgb
-from ...vision.background import (MODEL_MAX_FRAMES, blobs, clean, dilate, erode, foreground, frames_at, full_res,
+from ...vision.background import (MIN_BLOB_PX, MODEL_MAX_FRAMES, blobs, clean, dilate, erode, foreground, frames_at, full_res,
                                   largest_component, mog2_background, noise_sd, not_the_scene, spread, work_scale,
                                   yuv_image)
 from ...vision.draw import draw_tracks
@@ -338,8 +338,10 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
         object can be."""
         for i, (y, uv) in enumerate(video.yuv()):
             fg = full_res(foreground(yuv_image(y, uv, scale), bg, noise), hw) if shown[i] else None
-            if fg is not None and not elsewhere[0] and largest_component(fg & ~region) is not None:
-                elsewhere[0] = True
+            if fg is not None and not elsewhere[0]:
+                outside = fg & ~region
+                # (components only where enough is there: most frames of most videos have nothing outside)
+                elsewhere[0] = np.count_nonzero(outside) >= MIN_BLOB_PX and largest_component(outside) is not None
             yield y, None if fg is None else largest_component(fg & region)
 
     # the shape to centre silhouettes on: the first usable silhouettes
