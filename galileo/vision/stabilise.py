@@ -272,7 +272,8 @@ class _Registrar:
         small0 = yuv_image(y0, uv0, 0.5)
         self.ref_raw = small0[gy[keep], gx[keep]].astype(np.float64)
         self.ref_smooth = _smoothed(small0)[gy[keep], gx[keep]].astype(np.float64)
-        self.ref_mean_y = float(self.ref_raw[:, 0].mean())
+        # (no samples: nothing to normalise by; `fit` leaves such frames as they are)
+        self.ref_mean_y = float(self.ref_raw[:, 0].mean()) if len(self.ref_raw) else 128.0
         self.ref_sharpness = max(_sharpness(small0), 1e-9)
 
     def _seed(self, n: int, failed: np.ndarray) -> None:

@@ -379,6 +379,7 @@ def silhouette(ref: np.ndarray, samples: list[tuple[np.ndarray, np.ndarray]],
     near = cv2.dilate(region.astype(np.uint8), np.ones((RING_PX, RING_PX), np.uint8)) > 0
     ring = near & ~(cv2.dilate(region.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
     obj = thickest
+    coverage = thickest.astype(np.float32)
     if inner.sum() > 3 and ring.sum() > 3:
         yuv = ref.reshape(-1, 3).astype(np.float64)
         a, b = yuv[inner.ravel()], yuv[ring.ravel()]
@@ -388,8 +389,23 @@ def silhouette(ref: np.ndarray, samples: list[tuple[np.ndarray, np.ndarray]],
         found = _component_with((score > split) & near, _thickest_point(thickest))
         if found is not None:
             obj = _thick_part(_fill_holes(found), OBJECT_FRACTION)
+            coverage = _coverage(obj, score, b.mean(axis=0) @ w_dir, a.mean(axis=0) @ w_dir)
     # what is matched: the object and its outline (where the edges are)
-    return obj, cv2.dilate(obj.astype(np.uint8), np.ones((2 * MATCH_EDGE_PX + 1,) * 2, np.uint8)) > 0
+    return coverage, cv2.dilate(obj.astype(np.uint8), np.ones((2 * MATCH_EDGE_PX + 1,) * 2, np.uint8)) > 0
+
+
+def _coverage(obj: np.ndarray, score: np.ndarray, outside: float, inside: float) -> np.ndarray:
+    """The share of each pixel the object covers (float32, (H, W)): 1 inside its outline, 0
+    away from it, and on the outline's two rows of pixels, one each side, where it is read from
+    the discriminant's score. A pixel the edge crosses blends the two sides' colours in
+    proportion, and so does its score; a whole-pixel outline would put each edge on one side or
+    the other of such a pixel, and the centre up to half a pixel off, by a coin's toss."""
+    o = obj.astype(np.uint8)
+    band = (cv2.dilate(o, np.ones((3, 3), np.uint8)) > 0) & ~(cv2.erode(o, np.ones((3, 3), np.uint8)) > 0)
+    cov = obj.astype(np.float32)
+    if inside != outside:
+        cov[band] = np.clip((score[band] - outside) / (inside - outside), 0.0, 1.0)
+    return cov
 
 
 def _grabcut(img: np.ndarray, sure_bg: np.ndarray, maybe_fg: np.ndarray, sure_fg: np.ndarray) -> np.ndarray | None:
@@ -426,7 +442,8 @@ def _thick_part(region: np.ndarray, fraction: float) -> np.ndarray:
 
 
 def centre_and_size(mask: np.ndarray) -> tuple[np.ndarray, tuple[float, float]]:
-    """The object's centre (x, y) and size (width, height) in a mask of it (pixels): the centre
+    """The object's centre (x, y) and size (width, height) in a mask of it (pixels; boolean, or
+    the share of each pixel it covers, `_coverage`, whose outline is half covered): the centre
     of symmetry (the point reflection about it overlaps the mask most: the peak of the mask's
     self-convolution, at twice the centre, refined to sub-pixel) and the box of the symmetric
     part. A box, a cylinder, a ball look symmetric about their centre; what hangs on one side
@@ -439,7 +456,7 @@ def centre_and_size(mask: np.ndarray) -> tuple[np.ndarray, tuple[float, float]]:
     c = np.array([x2, y2]) / 2.0
     flipped = cv2.warpAffine(m, np.float32([[-1, 0, 2 * c[0]], [0, -1, 2 * c[1]]]), (m.shape[1], m.shape[0]),
                              flags=cv2.INTER_NEAREST)
-    ys, xs = np.nonzero((m > 0) & (flipped > 0))
+    ys, xs = np.nonzero((m >= 0.5) & (flipped >= 0.5))
     return c, (float(xs.max() - xs.min() + 1), float(ys.max() - ys.min() + 1))
 
 
