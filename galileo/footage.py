@@ -163,9 +163,12 @@ def effects_from_name(name: str) -> CameraEffects:
         except ValueError:
             level = math.nan
     effects = {**PRESETS, **EFFECTS}.get(base)
-    if effects is None or not 0.0 <= level <= 1.0:
+    if effects is None:
         raise GalileoError(f"unknown camera {name!r}; expected one of {', '.join(NAMES)}, optionally with a level "
                            "in [0, 1] (e.g. shake:0.5)")
+    if not 0.0 <= level <= 1.0:
+        raise GalileoError(f"camera {name!r}: the level {level_text!r} is not a number in [0, 1] (1: the strongest "
+                           f"documented {base!r}; e.g. {base}:0.5)")
     return effects if level == 1.0 else effects.scaled(level)
 
 

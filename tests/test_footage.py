@@ -215,11 +215,17 @@ def test_camera_names_and_levels():
     noise = effects_from_name("noise:0.5")
     assert noise.noise_read_sd == 2.0 and math.sqrt(noise.noise_gain) == math.sqrt(EFFECTS["noise"].noise_gain) / 2
     assert effects_from_name("phone") == PRESETS["phone"] and set(NAMES) >= {"clean", "webcam", "handheld", "hand"}
-    for bad in ("bogus", "shake:2", "shake:-0.1", "shake:x", "shake:nan", "phone:", "Shake", ""):
+    for bad in ("bogus", "Shake", "", "fisheye:0.5"):
         with pytest.raises(GalileoError) as e:
             effects_from_name(bad)
         msg = str(e.value)
         assert "\n" not in msg and "shake:0.5" in msg and all(n in msg for n in NAMES), bad
+    for bad, level in (("shake:2", "'2'"), ("shake:-0.1", "'-0.1'"), ("shake:x", "'x'"), ("shake:nan", "'nan'"),
+                       ("shake:", "''")):
+        with pytest.raises(GalileoError) as e:     # a known camera at a level it has not: the level is the fault
+            effects_from_name(bad)
+        msg = str(e.value)
+        assert "\n" not in msg and f"the level {level} is not a number in [0, 1]" in msg and "shake:0.5" in msg, bad
 
 
 def run_cli(*args):
