@@ -173,6 +173,13 @@ def largest_component(mask: np.ndarray) -> np.ndarray | None:
     return pixel_hull(labels == best)
 
 
+def touching(mask: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """The mask's 8-connected components that reach `where` (boolean)."""
+    labels, _ = _components(mask)
+    keep = np.unique(labels[where & (labels > 0)])
+    return np.isin(labels, keep) if len(keep) else np.zeros(mask.shape, bool)
+
+
 def blobs(mask: np.ndarray, min_fraction: float) -> list[np.ndarray]:
     """Masks of the components of at least MIN_BLOB_PX pixels and `min_fraction` of the
     largest one's area, in label order."""

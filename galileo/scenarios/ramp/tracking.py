@@ -18,9 +18,10 @@ Pipeline, for a video and a scene file whose camera describes it:
    left out of both models, no object is seen in it, and tracking goes on from the last
    frame that showed the scene (the constant-velocity prediction spanning the gap).
 2. Detection and roles: the ramp object is the uphill-most foreground component at frame 0
-   within the band of start positions its offset prior allows (the frame-0 foreground also
-   holds "ghosts" where objects come to rest later); the target is where the scene file
-   puts it, with the size it states.
+   within the band of start positions its offset prior allows that reaches the ramp's surface
+   (the frame-0 foreground also holds "ghosts" where objects come to rest later, and a shadow
+   that the end's background shows above the ramp); the target is where the scene file puts
+   it, with the size it states.
 3. Bottom-up recognition: from the frame-0 silhouette, the shape type from the object's
    appearance (a small CNN, `galileo.vision.shapenet`; side views of boxes and cylinders have the
    same silhouette) and per-axis size in metres and the ramp object's offset in units from
@@ -84,7 +85,7 @@ from ...video import VideoStream, yuv_to_rgb
 from ...vision import shapenet
 from ...vision.background import (MODEL_MAX_FRAMES, MOG_SCALE, blobs, clean, dilate, erode, foreground, frames_at,
                                   full_res, largest_component, mask_at, mog2, mog2_background, noise_sd, not_the_scene,
-                                  resize_to, scaled, spread, work_scale, yuv_image)
+                                  resize_to, scaled, spread, touching, work_scale, yuv_image)
 from ...vision.draw import draw_tracks
 from ...vision.klt import flow
 from ...vision.pose import rot_y
@@ -101,6 +102,8 @@ NEAR_MODEL_PX = 1          # full-resolution frame-0 foreground: within this man
 # 2 x 1 / scale + 1 px: 5 at half resolution, 9 at a 4K video's quarter)
 BAND_FLOOR_M = 0.002       # the band of start positions begins this far above the ramp's surface
 MIN_AREA_FRACTION = 0.25   # detection: components smaller than this fraction of the largest are noise
+CONTACT_M = 0.01           # detection: the ramp object at its start reaches the strip this high above the ramp ...
+CONTACT_PX = 4             # ... to within this many pixels
 MIN_INIT_M = 0.005         # silhouette fit: sizes start at least this large
 MIN_HEIGHT_M = 1e-3        # measured height floored at this
 FIT_PAD_PX = 30            # silhouette fit: margin around the observed silhouette
@@ -223,12 +226,17 @@ def _ramp_band_mask(scene: Scene, lo_m: float, hi_m: float, height_m: float) -> 
     return fill_polygon(np.round(np.array(pts)).astype(np.int32), (cam.height_px, cam.width_px)) > 0
 
 
-def _uphill_component(scene: Scene, mask: np.ndarray) -> np.ndarray | None:
-    """The foreground component furthest up the ramp, as a convex silhouette.
+def _uphill_component(scene: Scene, mask: np.ndarray, contact: np.ndarray | None = None) -> np.ndarray | None:
+    """The foreground component furthest up the ramp, as a convex silhouette; with `contact` (the
+    strip just above the ramp's surface), among those that reach it (within CONTACT_PX): an object
+    at rest on the ramp touches it, something in the air above it (a shadow on the wall behind)
+    does not.
 
     A slow object's resting place can lie inside its band of start positions; its ghost
     there is always downhill of where it started, since objects only slide down.
     """
+    if contact is not None:
+        mask = touching(mask, dilate(contact, 2 * CONTACT_PX + 1))
     big = blobs(mask, MIN_AREA_FRACTION)
     if not big:
         return None
@@ -240,12 +248,14 @@ def _uphill_component(scene: Scene, mask: np.ndarray) -> np.ndarray | None:
 
     return largest_component(max(big, key=up_the_ramp))
 
-def _start_band(scene: Scene) -> np.ndarray:
-    """Where the ramp object may start (the image region its offset prior allows)."""
+def _start_band(scene: Scene, height_m: float | None = None) -> np.ndarray:
+    """Where the ramp object may start (the image region its offset prior allows), up to `height_m`
+    above the ramp (default: the largest size its prior allows)."""
     pri, unit = scene.priors, scene.unit_m
     lo = (scene.start_units + pri.offset_units[0]) * unit - pri.size_m[1] / 2
     hi = (scene.start_units + pri.offset_units[1]) * unit + pri.size_m[1] / 2
-    return _ramp_band_mask(scene, max(lo, 0.0), min(hi, scene.ramp.length_m), pri.size_m[1])
+    return _ramp_band_mask(scene, max(lo, 0.0), min(hi, scene.ramp.length_m),
+                           pri.size_m[1] if height_m is None else height_m)
 
 
 def object_region(scene: Scene, size_m: float | None = None) -> np.ndarray:
@@ -274,12 +284,14 @@ def _detect_start(scene: Scene, fg0: np.ndarray) -> dict[str, tuple[np.ndarray, 
 
     The ramp object is searched in the band of start positions its offset prior allows:
     the foreground at frame 0 (against the background the video ends with) also holds
-    "ghosts" where objects come to rest later, and these lie elsewhere. The target is
-    where the scene file puts it, with the size it states (its silhouette would merge
-    with the ghost of a ramp object that stops against it).
+    "ghosts" where objects come to rest later, and these lie elsewhere, and whatever the end's
+    background shows that frame 0 does not (a shadow passing): of what lies in the band, only what
+    reaches the ramp's surface can be an object resting on it. The target is where the scene file
+    puts it, with the size it states (its silhouette would merge with the ghost of a ramp object
+    that stops against it).
     """
     found: dict[str, tuple[np.ndarray, str]] = {}
-    blob = _uphill_component(scene, fg0 & _start_band(scene))
+    blob = _uphill_component(scene, fg0 & _start_band(scene), _start_band(scene, CONTACT_M))
     found["ramp"] = (blob, "motion") if blob is not None else (_scene_mask(scene, 0), "scene")
     if scene.target is not None:
         # the scene file states the target's kind, size and place: take them
