@@ -131,6 +131,28 @@ def test_a_shadow_above_the_start_as_the_video_ends_is_not_the_object(demo_dir, 
     assert err < 0.01, (ramp.position_m[0], truth.position_m[0, 0])
 
 
+def test_the_start_is_what_reaches_the_ramp_if_anything_does(demo_dir):
+    """Of two things in the band of start positions, the one touching the ramp is the object even when
+    the other is further uphill; with nothing touching (a scene whose ramp is drawn a little off the
+    video's), the uphill-most stands, as before."""
+    from galileo.scenarios.ramp.tracking import CONTACT_M, _ramp_band_mask, _start_band, _uphill_component
+
+    scene = Scene.load(demo_dir / "scene.json")
+    start = scene.start_distance_m(scene.objects[0])
+    on_ramp = _ramp_band_mask(scene, start - 0.02, start + 0.02, 0.04)                     # touches
+    in_air = _ramp_band_mask(scene, start + 0.08, start + 0.12, 0.18) & ~_ramp_band_mask(scene, 0, 1, 0.1)
+    assert on_ramp.sum() > 100 and in_air.sum() > 100
+    contact = _start_band(scene, CONTACT_M)
+    both = on_ramp | in_air
+
+    def is_(found, blob):   # (a drawn blob's stray corner pixel may be a component of its own)
+        return (found & both).sum() >= 0.98 * blob.sum() and not (found & both & ~blob).any()
+
+    assert is_(_uphill_component(scene, both, contact), on_ramp)
+    assert is_(_uphill_component(scene, both), in_air)                  # (the rule before)
+    assert is_(_uphill_component(scene, in_air, contact), in_air)       # nothing touches
+
+
 def test_position_noise_is_the_noise_there_is():
     """Tracks of a fall (constant acceleration) with white noise of a known SD: the estimate from
     third differences is unbiased; over 200 tracks its mean is within 3 standard errors of the truth."""

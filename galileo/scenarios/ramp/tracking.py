@@ -102,8 +102,8 @@ NEAR_MODEL_PX = 1          # full-resolution frame-0 foreground: within this man
 # 2 x 1 / scale + 1 px: 5 at half resolution, 9 at a 4K video's quarter)
 BAND_FLOOR_M = 0.002       # the band of start positions begins this far above the ramp's surface
 MIN_AREA_FRACTION = 0.25   # detection: components smaller than this fraction of the largest are noise
-CONTACT_M = 0.01           # detection: the ramp object at its start reaches the strip this high above the ramp ...
-CONTACT_PX = 4             # ... to within this many pixels
+CONTACT_M = 0.02           # detection: the ramp object at its start reaches the strip this high above the ramp ...
+CONTACT_PX = 6             # ... to within this many pixels (a scene from clicks is a few pixels off)
 MIN_INIT_M = 0.005         # silhouette fit: sizes start at least this large
 MIN_HEIGHT_M = 1e-3        # measured height floored at this
 FIT_PAD_PX = 30            # silhouette fit: margin around the observed silhouette
@@ -228,15 +228,17 @@ def _ramp_band_mask(scene: Scene, lo_m: float, hi_m: float, height_m: float) -> 
 
 def _uphill_component(scene: Scene, mask: np.ndarray, contact: np.ndarray | None = None) -> np.ndarray | None:
     """The foreground component furthest up the ramp, as a convex silhouette; with `contact` (the
-    strip just above the ramp's surface), among those that reach it (within CONTACT_PX): an object
-    at rest on the ramp touches it, something in the air above it (a shadow on the wall behind)
-    does not.
+    strip just above the ramp's surface), among those that reach it (within CONTACT_PX) if any
+    does: an object at rest on the ramp touches it, something in the air above it (a shadow on the
+    wall behind) does not.
 
     A slow object's resting place can lie inside its band of start positions; its ghost
     there is always downhill of where it started, since objects only slide down.
     """
     if contact is not None:
-        mask = touching(mask, dilate(contact, 2 * CONTACT_PX + 1))
+        reach = touching(mask, dilate(contact, 2 * CONTACT_PX + 1))
+        if blobs(reach, MIN_AREA_FRACTION):   # (none: a scene whose ramp is drawn off the video's, as it was)
+            mask = reach
     big = blobs(mask, MIN_AREA_FRACTION)
     if not big:
         return None
