@@ -955,9 +955,11 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--recognition-move", type=bounded(1, MAX_SWEEPS, integer=True), metavar="EVERY", default=None,
                    help="with --init recognition: also propose the whole latent vector from the recognition "
                         "model every EVERY sweeps (an exact independence MH move)")
-    i.add_argument("--moves", choices=["default", "paper"], default="default",
+    i.add_argument("--moves", choices=["default", "paper", "fitted"], default="default",
                    help="default: widths adapted in a warm-up plus the scenario's exact joint moves (ramp: k1 from "
-                        "the tracked acceleration, mass-ratio moves); paper: Galileo section 3.2 exactly")
+                        "the tracked acceleration, mass-ratio moves); paper: Galileo section 3.2 exactly; fitted: "
+                        "default plus, after the warm-up, an exact independence move fitted to every chain's "
+                        "warm-up draws (chains that a jagged likelihood holds apart meet; needs --warmup >= 10)")
     i.add_argument("--warmup", type=every_int, default=None,
                    help="warm-up sweeps in which widths adapt (default: half of --sweeps; dropped with the burn-in)")
     i.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
@@ -994,7 +996,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="chains per video (default: the scenario's protocol, ramp 16, splash 50)")
     e.add_argument("--sweeps", type=sweeps_int, default=None, help="sweeps per chain (default: 75)")
     e.add_argument("--seed", type=seed_int, default=0)
-    e.add_argument("--moves", choices=["default", "paper"], default="default",
+    e.add_argument("--moves", choices=["default", "paper", "fitted"], default="default",
                    help="move set of every video's chains (see galileo infer; paper: Galileo section 3.2 exactly)")
     e.add_argument("--priors", metavar="JSON", help="merged into every video's scene priors (see galileo infer)")
     where = e.add_mutually_exclusive_group()
@@ -1045,7 +1047,8 @@ def build_parser() -> argparse.ArgumentParser:
     cb.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
                     help="run each inference on until R-hat <= R and ESS >= the ranked draws (or --max-sweeps)")
     cb.add_argument("--max-sweeps", type=sweeps_int, default=None, help="the sweep budget of --until-rhat")
-    cb.add_argument("--moves", choices=["default", "paper"], default="default")
+    cb.add_argument("--moves", choices=["default", "paper", "fitted"], default="default",
+                    help="move set of every inference (see galileo infer)")
     cb.add_argument("--draws", type=count_int, default=99,
                     help="posterior draws the truth is ranked among (default 99)")
     cb.add_argument("--scenes", default="default", metavar="default|dataset|FILE",

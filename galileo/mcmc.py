@@ -296,6 +296,107 @@ class RayMove(NamedTuple):
         return x, 0.0
 
 
+FITTED_DF = 5.0          # the fitted independence move: a multivariate Student-t of this many degrees of freedom ...
+FITTED_INFLATE = 1.5     # ... its scale this many times the warm-up draws' covariance's (a heavier, wider q
+                         # than the posterior: the Hastings ratio is bounded where q's tails cover p's)
+FITTED_WEIGHT = 0.8      # ... the rest of its mass the prior's box (a defensive uniform: q covers all of it)
+
+
+class FittedIndependence(NamedTuple):
+    """An independence move over the latents `sites` (the others unchanged), from a proposal q
+    fitted to where the chains are: with probability `weight` a multivariate Student-t (`df`
+    degrees of freedom, centre `loc`, scale factor `chol`) in a transformed space (the log of
+    the latents in `log_sites`, the others as they are), else uniform on the box `bounds` of
+    those sites (a defensive component: q is positive wherever the prior is). It carries its
+    Hastings factor, log q(x) - log q(x') with the log map's Jacobian in q's density in the
+    latents' own space, so it is exact for any fixed q (Robert & Casella 7.4; a mixture with a
+    heavy-tailed, defensive part, Hesterberg 1995). Fitted once, to every chain's warm-up draws
+    (`fit_independence`), and then frozen: the kept draws come from one fixed kernel. A proposal
+    draws from the whole posterior at once, so chains that a jagged likelihood holds in
+    different places (the ramp's k1, its target's friction against the mass ratio) meet."""
+    sites: tuple[int, ...]
+    log_sites: tuple[int, ...]   # a subset of sites
+    loc: tuple[float, ...]
+    chol: tuple                  # lower-triangular scale factor, rows as tuples
+    bounds: tuple                # ((lo, hi), ...) of the sites
+    df: float = FITTED_DF
+    weight: float = FITTED_WEIGHT
+    every: int = 1
+    name: str = "fitted"
+
+    def _y(self, v: np.ndarray) -> np.ndarray:
+        return np.array([math.log(v[k]) if i in self.log_sites else float(v[k]) for k, i in enumerate(self.sites)])
+
+    def logq(self, v: Sequence[float]) -> float:
+        """log q of the sites' values `v` (in the latents' own space); -inf outside the box."""
+        v = np.asarray(v, float)
+        box = np.asarray(self.bounds, float)
+        if not np.all((box[:, 0] <= v) & (v <= box[:, 1])):
+            return -math.inf
+        log_u = -float(np.log(box[:, 1] - box[:, 0]).sum())
+        if any(v[k] <= 0 for k, i in enumerate(self.sites) if i in self.log_sites):
+            return math.log1p(-self.weight) + log_u if self.weight < 1 else -math.inf
+        chol = np.asarray(self.chol, float)
+        d = len(self.sites)
+        z = np.linalg.solve(chol, self._y(v) - np.asarray(self.loc, float))
+        log_t = (math.lgamma((self.df + d) / 2) - math.lgamma(self.df / 2) - 0.5 * d * math.log(self.df * math.pi)
+                 - float(np.log(np.diag(chol)).sum()) - 0.5 * (self.df + d) * math.log1p(float(z @ z) / self.df))
+        log_t -= sum(math.log(v[k]) for k, i in enumerate(self.sites) if i in self.log_sites)   # dy/dv
+        parts = [math.log(self.weight) + log_t] if self.weight > 0 else []
+        if self.weight < 1:
+            parts.append(math.log1p(-self.weight) + log_u)
+        return float(np.logaddexp.reduce(parts))
+
+    def propose(self, rng: np.random.Generator, position) -> tuple[np.ndarray, float]:
+        x = np.asarray(position, float).copy()
+        old = x[list(self.sites)].copy()
+        if rng.uniform() < self.weight:
+            d = len(self.sites)
+            y = np.asarray(self.loc, float) + (np.asarray(self.chol, float) @ rng.normal(size=d)) / math.sqrt(
+                rng.chisquare(self.df) / self.df)
+            new = np.array([math.exp(y[k]) if i in self.log_sites else y[k] for k, i in enumerate(self.sites)])
+        else:
+            box = np.asarray(self.bounds, float)
+            new = rng.uniform(box[:, 0], box[:, 1])
+        x[list(self.sites)] = new
+        lq_new = self.logq(new)
+        if not lq_new > -math.inf:   # (a t draw outside the box: out of the prior, refused by the kernel)
+            return x, -math.inf
+        return x, self.logq(old) - lq_new
+
+
+def fit_independence(draws: np.ndarray, sites: Sequence[int], log_sites: Sequence[int], bounds: np.ndarray,
+                     inflate: float = FITTED_INFLATE) -> FittedIndependence | None:
+    """The move's q fitted to `draws` (N, D: every chain's warm-up draws, pooled): the t's
+    centre the draws' mean and its scale `inflate` times their covariance's Cholesky factor in
+    the transformed space (a latent whose draws do not vary gets a floor of
+    width: a hundred-thousandth of its prior's, for the factor only); None with fewer draws than twice the sites or a non-finite fit."""
+    draws = np.asarray(draws, float)
+    sites = tuple(int(i) for i in sites)
+    log_sites = tuple(int(i) for i in log_sites if i in sites)
+    bounds = np.asarray(bounds, float)
+    if len(sites) == 0 or len(draws) < 2 * len(sites):
+        return None
+    y = draws[:, list(sites)].copy()
+    for k, i in enumerate(sites):
+        if i in log_sites:
+            if np.any(y[:, k] <= 0):
+                return None
+            y[:, k] = np.log(y[:, k])
+    span = np.array([math.log(bounds[i, 1] / bounds[i, 0]) if i in log_sites and bounds[i, 0] > 0
+                     else bounds[i, 1] - bounds[i, 0] for i in sites])
+    cov = np.atleast_2d(np.cov(y.T)) + np.diag((1e-5 * span) ** 2)
+    try:
+        chol = np.linalg.cholesky(cov) * inflate
+    except np.linalg.LinAlgError:
+        return None
+    loc = y.mean(axis=0)
+    if not (np.all(np.isfinite(chol)) and np.all(np.isfinite(loc))):
+        return None
+    return FittedIndependence(sites, log_sites, tuple(map(float, loc)), _rows(chol),
+                              tuple((float(bounds[i, 0]), float(bounds[i, 1])) for i in sites))
+
+
 TARGET_ACCEPTANCE = 0.44   # warm-up adapts random-walk widths towards this (1-D optimum, Roberts & Rosenthal)
 
 

@@ -117,7 +117,7 @@ class InferenceResult:
     scene: object                # the scene inferred on (what tracking fixed put in)
     init: dict | None = None     # how chains started (prior / recognition: the readings) and extra moves
     warmup: int = 0              # sweeps of width adaptation (dropped from the summaries with the burn-in)
-    moves: dict | None = None    # {"set": default|paper, "joint": names, "codes": {name: site code}, "adapted"}
+    moves: dict | None = None    # {"set": default|paper|fitted, "joint": names, "codes": {name: site code(s)}, "adapted"}
     notes: tuple = ()            # what the observations say about themselves (e.g. nothing moves), shown to users
 
     @property
@@ -180,7 +180,7 @@ class InferenceResult:
             acc[n] = float(accepted[sel].mean()) if sel.any() else None
         codes = (self.moves or {}).get("codes") or ({"independence": -1} if (site == -1).any() else {})
         for name, code in codes.items():   # joint moves: the independence move, the scenario's moves
-            sel = site == code
+            sel = np.isin(site, code)      # (a move made several times a sweep has a list of codes)
             if sel.any():
                 acc[f"{name}_move"] = float(accepted[sel].mean())
         return {"r_hat": conv["r_hat"], "ess": conv["ess_bulk"], "ess_tail": conv["ess_tail"],

@@ -13,7 +13,9 @@ prior, `initial_positions(bounds, c + 1, seed)[c]`; the splash starts as its see
 
 Move sets (`RunConfig.moves`): "paper" is Galileo 3.2 as published; "default" adds warm-up
 adaptation of the widths and joint moves (`default_moves`: the scenario's own and an
-adaptive joint random walk). A task carries its chain's adapted widths and moves, so a
+adaptive joint random walk); "fitted" (`infer` only) adds, after the warm-up, an independence
+move fitted to every chain's warm-up draws (`fitted_move`): from then on a chain depends on
+the others' warm-ups too (still only on the seed and the settings). A task carries its chain's adapted widths and moves, so a
 chain continued in another task (`next_task`: the batch runner's blocks when it runs until
 converged, the controller's rounds) is the same chain.
 
@@ -53,11 +55,15 @@ from .latents import (
     check_widths,
     default_widths,
 )
-from .mcmc import JointRW, MHState, Proposal, adapt, chain_rng, sweep
+from .mcmc import JointRW, MHState, Proposal, adapt, chain_rng, fit_independence, sweep
 from .progress import tqdm
 from .results import MIN_ESS, RHAT_TARGET, InferenceResult, convergence, kept_draws
 
-MOVE_SETS = ("default", "paper")
+MOVE_SETS = ("default", "paper")           # what the app's controller runs
+BATCH_MOVE_SETS = (*MOVE_SETS, "fitted")    # ... and `infer` (batch: the fitted move needs every chain's warm-up at once)
+FITTED_PER_SWEEP = 12                       # "fitted": its proposals a sweep after the warm-up (the demo converged
+                                            # in 757, 337, 225 sweeps with 3, 6, 12: each accepted one is a fresh draw)
+FITTED_MIN_WARMUP = 10                      # "fitted": fewer warm-up sweeps than this fit nothing
 UNTIL_WARMUP_SWEEPS = 100
 PROGRESS_PIECE_S = 2.0   # with a progress bar, `infer` runs each chain in pieces of about this long
 SHUTDOWN_GRACE_S = 10.0  # how long LocalPool.shutdown waits for a worker to exit before it kills it
@@ -156,7 +162,8 @@ class RunConfig:
     broad: float | None = None
     broad_every: int | None = None      # None: every 20th sweep is broad
     bounds: dict | None = None          # prior bounds overriding the scene's, per latent
-    moves: str = "default"              # "default": warm-up adaptation + the scenario's moves; "paper": section 3.2 as is
+    moves: str = "default"              # "default": warm-up adaptation + the scenario's moves; "paper": section 3.2 as is;
+                                        # "fitted": "default" + an independence move fitted to the warm-up (`infer`)
     warmup: int | None = None           # sweeps of width adaptation (None: half of `sweeps`; never with "paper")
     until_rhat: float | None = None     # run on until every latent's R-hat <= this (and ESS >= min_ess) ...
     min_ess: float = MIN_ESS
@@ -201,11 +208,14 @@ class RunConfig:
             raise GalileoError(f"workers must be an integer >= 1, got {self.workers!r}")
         if int(self.seed) != self.seed or self.seed < 0:
             raise GalileoError(f"seed must be an integer >= 0, got {self.seed!r}")
-        if self.moves not in MOVE_SETS:
-            raise GalileoError(f"moves must be one of {', '.join(MOVE_SETS)}, got {self.moves!r}")
+        if self.moves not in BATCH_MOVE_SETS:
+            raise GalileoError(f"moves must be one of {', '.join(BATCH_MOVE_SETS)}, got {self.moves!r}")
         if self.warmup is not None and (isinstance(self.warmup, bool) or int(self.warmup) != self.warmup
                                         or not 0 <= self.warmup <= self.sweeps):
             raise GalileoError(f"warmup must be an integer from 0 to the sweeps ({self.sweeps}), got {self.warmup!r}")
+        if self.moves == "fitted" and self.warmup_sweeps() < FITTED_MIN_WARMUP:
+            raise GalileoError(f"moves fitted needs a warm-up of at least {FITTED_MIN_WARMUP} sweeps to fit its move to "
+                               f"(this run's: {self.warmup_sweeps()}; --warmup, or more --sweeps)")
         for what, v, lo in (("until_rhat", self.until_rhat, 1.0), ("rhat_target", self.rhat_target, 1.0)):
             if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > lo):
                 raise GalileoError(f"{what} must be a number above {lo:g}, got {v!r}")
@@ -500,7 +510,9 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
     each latent's narrow width towards acceptance 0.44, and the scenario's own joint moves
     (`Scenario.moves`, e.g. the ramp's k1 from the tracked acceleration and its mass-ratio
     moves), each exact; the kept draws (after max(warm-up, half the chain)) come from one
-    fixed kernel.
+    fixed kernel. "fitted" runs the warm-up alone first, then adds to every chain
+    FITTED_PER_SWEEP proposals a sweep of an independence move fitted to all chains' warm-up
+    draws (`fitted_move`), frozen from then on.
 
     With `config.until_rhat`, chains run `config.sweeps` sweeps and then on, in blocks of half
     what they have done (at least 25), until every latent's rank-normalised split R-hat is at
@@ -533,11 +545,14 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
     else:
         starts = scenario.initial_positions(prepared, latents, bounds, cfg.chains, cfg.seed)
     independence = chosen.independence if chosen is not None else None
-    moves = default_moves(scenario, prepared, tracks, latents, bounds, settings) if cfg.moves == "default" else ()
+    moves = default_moves(scenario, prepared, tracks, latents, bounds, settings) if cfg.moves != "paper" else ()
     warmup = cfg.warmup_sweeps()
+    # "fitted": the warm-up first, alone, then the move fitted to it joins every chain's moves
+    fit_at = (warmup if cfg.moves == "fitted" and FITTED_MIN_WARMUP <= warmup
+              and (warmup < cfg.sweeps or cfg.until_rhat) else None)
     problem = Problem.of(scene, tracks)
-    tasks = [first_task(problem, c, starts[c], cfg.seed, cfg.sweeps, settings, names, cfg.speedups, independence,
-                        moves, warmup) for c in range(cfg.chains)]
+    tasks = [first_task(problem, c, starts[c], cfg.seed, fit_at or cfg.sweeps, settings, names, cfg.speedups,
+                        independence, moves, warmup) for c in range(cfg.chains)]
     own = executor is None
     if own:
         executor = local_executor(cfg.workers, cfg.chains)
@@ -551,6 +566,14 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
             while True:
                 _run_block(executor, tasks, done, bar, piecewise=progress)
                 n_done = int(done[0][-1]["sweep"])
+                if n_done == fit_at:
+                    q = fitted_move(latents, bounds, [np.concatenate([r["positions"] for r in rs]) for rs in done],
+                                    warmup)
+                    moves = moves + ((q,) * FITTED_PER_SWEEP if q is not None else ())
+                    if n_done < cfg.sweeps:
+                        tasks = _joined([next_task(tasks[c], done[c][-1], cfg.sweeps - n_done)
+                                         for c in range(cfg.chains)], moves)
+                        continue
                 if not cfg.until_rhat:
                     break
                 samples = [np.concatenate([r["positions"] for r in rs]) for rs in done]
@@ -561,7 +584,7 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
                 more = min(max(MIN_BLOCK_SWEEPS, n_done // 2), budget - n_done)
                 bar.total += cfg.chains * more
                 bar.refresh()
-                tasks = [next_task(tasks[c], done[c][-1], more) for c in range(cfg.chains)]
+                tasks = _joined([next_task(tasks[c], done[c][-1], more) for c in range(cfg.chains)], moves)
     finally:
         if own:
             executor.shutdown()
@@ -569,7 +592,7 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
     proposals = {k: np.stack([r[k] for r in merged]) for k in PROPOSAL_FIELDS}
     wall = time.perf_counter() - t0
     info = dict(chosen.info) if chosen is not None else {"starts": "prior"}
-    move_names = (["independence"] if independence is not None else []) + [m.name for m in moves]
+    move_names = (["independence"] if independence is not None else []) + list(dict.fromkeys(m.name for m in moves))
     adapted = {"narrow": [_plain_widths(r["proposal_state"].narrow) for r in merged],
                "moves": [{m.name: float(m.width) for m in r["moves"] if hasattr(m, "width")} for r in merged]}
     return InferenceResult(
@@ -633,6 +656,25 @@ def with_priors(scene, overrides: dict):
         raise GalileoError(f"--priors: {e}") from None
 
 
+def _joined(tasks: list[ChainTask], moves: tuple) -> list[ChainTask]:
+    """The tasks with the moves they lack of `moves` (the fitted move, after the warm-up) appended."""
+    return [t._replace(moves=tuple(t.moves) + tuple(moves[len(t.moves):])) for t in tasks]
+
+
+def fitted_move(latents: Sequence[Latent], bounds: np.ndarray, chains: Sequence[np.ndarray], warmup: int):
+    """The "fitted" move set's independence move (`galileo.mcmc.FittedIndependence`) over every
+    continuous latent (in log for those the adaptive walk takes in log), fitted to the second half
+    of every chain's warm-up draws pooled; None if it cannot be fitted."""
+    sites = [j for j, lat in enumerate(latents) if not lat.integer]
+    draws = np.concatenate([np.asarray(c, float)[warmup // 2:warmup] for c in chains])
+    return fit_independence(draws, sites, _log_sites(latents, bounds, sites), bounds)
+
+
+def _log_sites(latents: Sequence[Latent], bounds: np.ndarray, sites: Sequence[int]) -> list[int]:
+    """The sites moved in log: bounded away from 0 above 0 and not dimensionless (masses)."""
+    return [j for j in sites if latents[j].limits[0] >= 0 and bounds[j, 0] > 0 and latents[j].unit != "1"]
+
+
 def default_moves(scenario, prepared, tracks: Tracks, latents: Sequence[Latent], bounds: np.ndarray,
                   settings: Settings) -> tuple:
     """The default move set's joint moves: the scenario's own, then an adaptive joint random
@@ -641,7 +683,7 @@ def default_moves(scenario, prepared, tracks: Tracks, latents: Sequence[Latent],
     moves = list(scenario.moves(prepared, tracks, latents, bounds))
     sites = [j for j, lat in enumerate(latents) if not lat.integer]
     if len(sites) >= 2 and scenario.adaptive_walk:
-        log_sites = [j for j in sites if latents[j].limits[0] >= 0 and bounds[j, 0] > 0 and latents[j].unit != "1"]
+        log_sites = _log_sites(latents, bounds, sites)
         narrow = settings.narrow
         # the first covariance: the narrow widths, and 0.3 in log (a 35 % step) for log sites
         sd = [JOINT_LOG_SD if j in log_sites else float(narrow[j] if isinstance(narrow, tuple) else narrow)
@@ -668,8 +710,9 @@ def _move_codes(independence, moves) -> dict:
     """The proposal record's site code of each joint move (see `galileo.mcmc.sweep`)."""
     from .mcmc import move_code
 
-    codes = {"independence": -1} if independence is not None else {}
-    codes.update({m.name: move_code(k) for k, m in enumerate(moves)})
+    codes: dict = {"independence": -1} if independence is not None else {}
+    for k, m in enumerate(moves):   # (a move made several times a sweep: all its codes)
+        codes[m.name] = [*np.atleast_1d(codes[m.name]).tolist(), move_code(k)] if m.name in codes else move_code(k)
     return codes
 
 

@@ -207,3 +207,54 @@ def test_ray_move_samples_the_ridge_in_one_step_and_fails_with_a_uniform_draw():
     bad = _chain(_ratio_logdensity, [0.9, 0.6], bounds,
                  [UniformRay((0, 1), ((LO, HI), (LO, HI))), LogScale((0, 1), (1.0, -1.0), 0.15)])
     assert stats.ks_2samp(bad[:, 0], truth[:, 0]).pvalue < 1e-6
+
+
+# -- the fitted independence move (issue 30) ------------------------------------------------------
+
+def test_fitted_independence_samples_its_target_and_fails_without_its_hastings_factor():
+    """A q off-centre and too narrow on purpose (its t in (log m, k) centred half an SD off, at half
+    the posterior's scale): only the Hastings factor, with the log map's Jacobian, makes the chain
+    forget it. Independence moves alone."""
+    from galileo.mcmc import FittedIndependence
+
+    bounds = [(1e-3, 5.0), (-1.0, 2.0)]
+    q = FittedIndependence((0, 1), (0,), (math.log(0.3) + 0.1, 0.45), ((0.1, 0.0), (0.045, 0.022)),
+                           tuple(map(tuple, bounds)))
+    good = _chain(_corr_logdensity, [0.5, 0.5], bounds, [q])
+    assert stats.kstest(np.log(good[:, 0]), stats.norm(math.log(0.3), 0.2).cdf).pvalue > 1e-3
+    assert stats.kstest(good[:, 1], stats.norm(0.4, 0.1).cdf).pvalue > 1e-3
+    bad = _chain(_corr_logdensity, [0.5, 0.5], bounds, [q], hastings=False)
+    assert stats.kstest(np.log(bad[:, 0]), stats.norm(math.log(0.3), 0.2).cdf).pvalue < 1e-6
+
+
+def test_fitted_independence_density_is_its_mixture_in_the_latents_own_space():
+    """In one log site: the density integrates over the box to the t's mass there (its log's CDF,
+    scipy's) times the weight plus the defensive uniform's share."""
+    from galileo.mcmc import FittedIndependence
+
+    lo, hi = 0.01, 2.0
+    q = FittedIndependence((0,), (0,), (math.log(0.2),), ((0.8,),), ((lo, hi),), df=5.0, weight=0.7)
+    xs = np.exp(np.linspace(math.log(lo), math.log(hi), 400001))
+    dens = np.exp([q.logq([x]) for x in xs])
+    t = stats.t(5.0, loc=math.log(0.2), scale=0.8)
+    expected = 0.7 * (t.cdf(math.log(hi)) - t.cdf(math.log(lo))) + 0.3
+    assert abs(np.trapezoid(dens, xs) - expected) < 1e-4
+    assert q.logq([hi * 1.01]) == -math.inf
+
+
+def test_fitted_independence_is_fitted_to_the_draws_and_refuses_too_few():
+    from galileo.mcmc import FITTED_INFLATE, fit_independence
+
+    rng = np.random.default_rng(0)
+    y = rng.multivariate_normal([math.log(0.3), 0.4], [[0.04, 0.018], [0.018, 0.01]], size=4000)
+    draws = np.c_[np.exp(y[:, 0]), y[:, 1], np.full(4000, 7.0)]          # a third latent it does not move
+    bounds = np.array([(1e-3, 5.0), (-1.0, 2.0), (0.0, 10.0)])
+    q = fit_independence(draws, (0, 1), (0,), bounds)
+    assert q.sites == (0, 1) and q.log_sites == (0,)
+    assert np.allclose(q.loc, [math.log(0.3), 0.4], atol=0.01)
+    cov = np.asarray(q.chol) @ np.asarray(q.chol).T / FITTED_INFLATE ** 2
+    assert np.allclose(cov, [[0.04, 0.018], [0.018, 0.01]], rtol=0.1)
+    x, _ = q.propose(chain_rng(0, 0), draws[0])
+    assert x[2] == 7.0                                                  # the others unchanged
+    assert fit_independence(draws[:3], (0, 1), (0,), bounds) is None
+    assert fit_independence(-draws, (0, 1), (0,), bounds) is None       # a log site at or below 0
