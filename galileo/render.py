@@ -16,6 +16,7 @@ galileo/scenarios/splash/render.py).
 """
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 from dataclasses import dataclass
@@ -83,8 +84,11 @@ def grain_texture(rgb: tuple[int, int, int], rng: np.random.Generator, px: int =
 
 def load_texture(img_rgb: np.ndarray, name: str, cid: int) -> int:
     """Write the texture to a PNG (whole, then renamed into place) and load it into client `cid`;
-    its pybullet texture id."""
-    path = scratch_dir() / f"{name}.png"
+    its pybullet texture id. The file is named by its content too: pybullet keeps a texture by its
+    path for the process's life, so a second scene's texture of the same name (another object
+    under the same seed) would have been drawn with the first's."""
+    digest = hashlib.sha256(np.ascontiguousarray(img_rgb).tobytes() + repr(img_rgb.shape).encode()).hexdigest()[:16]
+    path = scratch_dir() / f"{name}_{digest}.png"
     tmp = path.with_name(f".{path.stem}.tmp.png")
     if not cv2.imwrite(str(tmp), img_rgb[..., ::-1]):
         raise RuntimeError(f"cannot write texture {tmp}")

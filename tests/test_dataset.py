@@ -111,3 +111,31 @@ def test_small_preset_renders(tmp_path):
         scene = Scene.load(tmp_path / e["name"] / "scene.json")
         assert scene.camera.n_frames == e["n_frames"]
         assert math.isclose(scene.ramp.angle_deg, e["angle_deg"])
+
+
+def test_a_render_does_not_depend_on_what_was_rendered_before_in_the_process(tmp_path):
+    """pybullet keeps a texture by its file's path for the process's life: a scene rendered after
+    another under the same texture seed drew its block with the other's texture (the demo's video
+    differed, its truth not). The same video, byte for byte, fresh or after another render."""
+    import hashlib
+    import subprocess
+    import sys
+
+    code = ("import sys, hashlib, numpy as np; from pathlib import Path\n"
+            "from galileo.scenarios.ramp.dataset import build\n"
+            "if sys.argv[1] == 'after':\n"
+            "    from galileo.render import Look\n"
+            "    from galileo.scenarios.ramp.render import render_to_video\n"
+            "    from galileo.scenarios.ramp.scene import default_camera, default_scene\n"
+            "    s = default_scene(20.0, friction=0.6, target='cardboard', distance_m=0.1,"
+            " camera=default_camera(n_frames=8), offset_units=2)\n"
+            "    render_to_video(s, Path(sys.argv[2]) / 'other.mp4', 8, look=Look.random(np.random.default_rng(5)))\n"
+            "build('demo', Path(sys.argv[2]) / 'd', seed=0, workers=1, progress=False)\n"
+            "print(hashlib.sha256((Path(sys.argv[2]) / 'd' / 'demo' / 'video.mp4').read_bytes()).hexdigest())\n")
+    digests = []
+    for order in ("fresh", "after"):   # each in a process of its own (pybullet's textures live with it)
+        out = tmp_path / order
+        out.mkdir()
+        done = subprocess.run([sys.executable, "-c", code, order, str(out)], capture_output=True, text=True, check=True)
+        digests.append(done.stdout.strip())
+    assert digests[0] == digests[1] and len(digests[0]) == 64

@@ -256,3 +256,21 @@ def test_white_balance_drift_is_normalised():
     assert max(before) > 3
     assert max(after) < 1.5, after
     assert any(n.startswith("the white balance drifted") for n in stab.notes()), stab.notes()
+
+
+def test_foreground_with_a_pixels_shift_leaves_out_edges_a_misregistration_moves_and_keeps_an_object():
+    """A textured scene moved by 0.6 px (what stabilising a shaking camera leaves) differs along its
+    edges from the unmoved one: plain foreground marks them; with shift_px=1 none remain, while a
+    block of 40 levels placed on it is marked whole by both."""
+    from galileo.vision.background import foreground
+
+    rng = np.random.default_rng(0)
+    scene = cv2.resize(rng.uniform(0, 255, (30, 40, 3)).astype(np.uint8), (160, 120), interpolation=cv2.INTER_NEAREST)
+    moved = cv2.warpAffine(scene, np.float32([[1, 0, 0.6], [0, 1, 0.0]]), (160, 120), flags=cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_REPLICATE)
+    assert foreground(moved, scene, 1.0)[2:-2, 2:-2].mean() > 0.05 * 255       # the edges, plain
+    assert not foreground(moved, scene, 1.0, shift_px=1)[2:-2, 2:-2].any()
+    block = moved.copy()
+    block[50:70, 60:90] = np.clip(block[50:70, 60:90].astype(int) + 40, 0, 255).astype(np.uint8)
+    inside = foreground(block, scene, 1.0, shift_px=1)[52:68, 62:88] > 0
+    assert inside.mean() > 0.5

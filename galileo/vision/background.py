@@ -58,9 +58,16 @@ def mog2_background(frames: np.ndarray, reverse: bool) -> np.ndarray:
     return mog.getBackgroundImage()
 
 
-def foreground(frame: np.ndarray, background: np.ndarray, noise_sd: float) -> np.ndarray:
-    """Pixels that differ from the background by more than the noise allows (any channel)."""
-    d = cv2.absdiff(frame, background)   # (uint8: |a - b| exactly; numpy's int16 round trip cost 4x as much)
+def foreground(frame: np.ndarray, background: np.ndarray, noise_sd: float, shift_px: int = 0) -> np.ndarray:
+    """Pixels that differ from the background by more than the noise allows (any channel); with
+    `shift_px`, from every background pixel within that many pixels (brighter than the brightest
+    of them or darker than the darkest: the background's edges shifted by up to that much, as a
+    camera stabilised to a fraction of a pixel leaves them, differ nowhere)."""
+    if shift_px:
+        k = np.ones((2 * shift_px + 1,) * 2, np.uint8)
+        d = cv2.max(cv2.subtract(frame, cv2.dilate(background, k)), cv2.subtract(cv2.erode(background, k), frame))
+    else:
+        d = cv2.absdiff(frame, background)   # (uint8: |a - b| exactly; numpy's int16 round trip cost 4x as much)
     d = cv2.max(cv2.max(d[..., 0], d[..., 1]), d[..., 2]) if d.ndim == 3 else d
     return (d > max(FG_MIN_DIFF, FG_NOISE_SDS * noise_sd)).astype(np.uint8) * 255
 

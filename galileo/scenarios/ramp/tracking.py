@@ -432,7 +432,8 @@ class _SceneModels:
     small0: np.ndarray      # frame 0 at the models' scale (Y, U, V)
     noise: float            # sensor noise (levels), from frames 0 and 1
     bg_end: np.ndarray      # the scene as it ends (the models' scale)
-    fg_last: np.ndarray     # the last frame against the scene as it starts (a mask, quarter of the models' scale)
+    fg_last: np.ndarray     # the last frame against the scene as it starts (a mask, quarter of the models' scale;
+                            # what a pixel's shift would explain left out: `foreground`'s shift_px)
     shown: np.ndarray       # (n,) whether each frame shows the scene (`not_the_scene`)
 
 
@@ -476,7 +477,7 @@ def _learn_scene(video: Stabilised, n: int, scale: float, bar) -> _SceneModels:
     if not shown.all():
         ends = frames_at(video, _end_part(np.flatnonzero(shown)), scale)
     bg_end = mog2_background(ends, reverse=True)
-    fg_last = foreground(tiny, start_model.getBackgroundImage(), noise)
+    fg_last = foreground(tiny, start_model.getBackgroundImage(), noise, shift_px=1)
     return _SceneModels(*first, noise, bg_end, fg_last, shown)
 
 
@@ -504,13 +505,16 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
     notes = [note for note in (video.timing_note(),) if note] + video.notes()
     noise, bg_end, small0 = models.noise, models.bg_end, models.small0
     fg0_small = full_res(foreground(small0, bg_end, noise), full_hw)
+    # (the last frame against the start: less what a pixel's misregistration explains, since a stabilised
+    # shaking camera leaves edges a fraction of a pixel off, and a still video read as moving on them)
     fg_last = full_res(models.fg_last, full_hw)
+    moved = fg0_small | fg_last
     region = object_region(scene)
-    if largest_component((fg0_small | fg_last) & ~region) is not None:
+    if largest_component(moved & ~region) is not None:
         notes.append(DISTRACTOR_NOTE)
     # objects that move leave where they start; what moves elsewhere is no object of the scene
     leaving = dilate(_start_band(scene) | _target_start(scene), REACQUIRE_PX)
-    if largest_component((fg0_small | fg_last) & leaving) is None:
+    if largest_component(moved & leaving) is None:
         bar.close()   # nothing moves: evidence in itself (the ramp object holds on the ramp)
         tracks = held_still(scene, n, models.shown)
         tracks.notes.extend(notes + rarely_seen_notes(tracks.objects))
