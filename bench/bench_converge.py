@@ -46,7 +46,7 @@ sys.path.insert(0, str(ROOT))
 from galileo.errors import GalileoError, run_reporting_errors  # noqa: E402
 from galileo.jsonio import read_json, write_json  # noqa: E402
 from galileo.results import convergence, kept_draws  # noqa: E402
-from galileo.runner import MIN_BLOCK_SWEEPS  # noqa: E402
+from galileo.runner import block_after  # noqa: E402
 
 TARGET_S = 5.0
 
@@ -68,11 +68,11 @@ def videos_of(dataset: Path) -> list[dict]:
 
 def checkpoints(first: int, total: int) -> list[int]:
     """The sweeps after which `galileo.runner.infer --until-rhat` looked: its first block, then
-    blocks of half what was done (at least MIN_BLOCK_SWEEPS), up to the sweeps the run made."""
+    blocks of half what was done (`block_after`), up to the sweeps the run made."""
     out, n = [], first
     while n < total:
         out.append(n)
-        n += max(MIN_BLOCK_SWEEPS, n // 2)
+        n += block_after(n, total)
     return out + [total]
 
 

@@ -581,7 +581,7 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
                 bar.set_postfix_str(status["summary"], refresh=False)
                 if status["converged"] or n_done >= budget:
                     break
-                more = min(max(MIN_BLOCK_SWEEPS, n_done // 2), budget - n_done)
+                more = block_after(n_done, budget)
                 bar.total += cfg.chains * more
                 bar.refresh()
                 tasks = _joined([next_task(tasks[c], done[c][-1], more) for c in range(cfg.chains)], moves)
@@ -606,6 +606,12 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
 
 
 MIN_BLOCK_SWEEPS = 25
+
+
+def block_after(n_done: int, budget: int) -> int:
+    """How many sweeps running until converged adds after `n_done` (half of them, at least
+    MIN_BLOCK_SWEEPS, within the `budget`): `infer`'s blocks and the app's."""
+    return min(max(MIN_BLOCK_SWEEPS, n_done // 2), budget - n_done)
 JOINT_LOG_SD = 0.3
 
 

@@ -96,7 +96,7 @@ from galileo.latents import as_number, by_name, check_bounds, check_noise, check
 from galileo.mcmc import chain_rng, move_code
 from galileo.results import MIN_ESS, RHAT_TARGET, burn_in, convergence, derived_summaries
 from galileo.runner import (MIN_BLOCK_SWEEPS, MOVE_SETS, PROPOSAL_FIELDS, ChainTask, LocalPool, Problem, RunConfig,
-                            Settings, WorkerDied, WorkerHung, default_moves, run_task, scene_for_moves)
+                            Settings, WorkerDied, WorkerHung, block_after, default_moves, run_task, scene_for_moves)
 
 from . import session as sess
 
@@ -547,7 +547,7 @@ class Controller:
         elif base >= u["max_sweeps"]:
             detail["outcome"] = f"not converged, the budget of {u['max_sweeps']} sweeps is spent: the chains stay paused"
         else:
-            self._target = base + min(max(MIN_BLOCK_SWEEPS, base // 2), u["max_sweeps"] - base)
+            self._target = base + block_after(base, u["max_sweeps"])
             for ch in held:
                 ch.paused = ch.held = False
             detail.update(outcome=f"not converged: run on to sweep {self._target}", target=self._target,
