@@ -425,7 +425,13 @@ def cmd_infer(args: argparse.Namespace) -> int:
     npz = result.save(args.out, doc)
     for note in result.notes:
         print(f"note: {note}")
-    print(f"MAP: {scenario.summary(result.scene, result.map)}")
+    gone = doc["not_identified"]
+    print(f"MAP: {scenario.summary(result.scene, result.map, omit=gone) or '(nothing identified)'}")
+    by_why: dict[str, list[str]] = {}
+    for name, why in gone.items():
+        by_why.setdefault(why, []).append(name)
+    for why, names in by_why.items():
+        print(f"not identified: {', '.join(names)}: {why}")
     for k, v in doc["posterior_derived"].items():
         if not k.startswith("log_"):
             print(f"posterior {k}: {v['q50']:.3g} (90%: {v['q05']:.3g}-{v['q95']:.3g})")

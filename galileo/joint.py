@@ -399,13 +399,13 @@ class JointScenario(Scenario):
                 out[video_name(k, v, n)] = val
         return out
 
-    def unidentified(self, scene: JointScene) -> dict[str, str]:
-        """The base scenario's, over the problem's videos and fixed latents."""
-        return self.base.not_identified(scene.scenes, scene.fixed)
+    def unidentified(self, scene: JointScene, tracks=None) -> dict[str, str]:
+        """The base scenario's, over the problem's videos, fixed latents and tracks (if known)."""
+        return self.base.not_identified(scene.scenes, scene.fixed, None if tracks is None else tracks_list(tracks))
 
-    def summary(self, scene, values):
-        parts = [f"{k} = {v:.4g}" for k, v in values.items()]
-        parts += [f"{k} = {v:.4g}" for k, v in self.derived(scene, values).items() if v is not None]
+    def summary(self, scene, values, omit=()):
+        parts = [f"{k} = {v:.4g}" for k, v in values.items() if k not in omit]
+        parts += [f"{k} = {v:.4g}" for k, v in self.derived(scene, values).items() if v is not None and k not in omit]
         if scene.fixed:
             parts.append("fixed " + ", ".join(f"{k} = {v:g}" for k, v in scene.fixed.items()))
         return ", ".join(parts)

@@ -149,15 +149,20 @@ class Scenario(ABC):
         `moves` in a problem. Default: none."""
         return ()
 
-    def not_identified(self, prepared_scenes: Sequence, fixed: dict[str, float]) -> dict[str, str]:
-        """The latents (as the problem names them: `name@v` for one video's own in a problem of
-        several) that these videos, with these latents fixed, do not identify, each with why
-        (result.json's "not_identified"). Default: none said."""
+    def not_identified(self, prepared_scenes: Sequence, fixed: dict[str, float],
+                       tracks: Sequence[Tracks] | None = None) -> dict[str, str]:
+        """The latents and derived quantities (as the problem names them: `name@v` for one
+        video's own in a problem of several) that these videos, with these latents fixed, do
+        not identify, each with why (result.json's "not_identified"; a derived quantity named
+        here gets no point estimate and no posterior summary). `tracks`, one per scene where
+        known: what was observed (a video in which nothing moves identifies less than its scene
+        could). Default: none said."""
         return {}
 
-    def unidentified(self, scene) -> dict[str, str]:
-        """result.json's "not_identified" for a (prepared) scene: `not_identified([scene], {})`."""
-        return self.not_identified([scene], {})
+    def unidentified(self, scene, tracks=None) -> dict[str, str]:
+        """result.json's "not_identified" for a (prepared) scene and its tracks (if known):
+        `not_identified([scene], {}, [tracks])`."""
+        return self.not_identified([scene], {}, None if tracks is None else [tracks])
 
     def shared_latents(self, prepared_scenes: Sequence) -> tuple[str, ...]:
         """The latents the videos of a problem share without being told (`galileo.joint`): one
@@ -198,10 +203,11 @@ class Scenario(ABC):
         (e.g. a mass ratio, or a mass from a density and the bottom-up volume)."""
         return {}
 
-    def summary(self, scene, values: dict[str, float]) -> str:
-        """One line for a MAP estimate (what `galileo infer` prints after "MAP: ")."""
-        parts = [f"{k} = {v:.3f}" for k, v in values.items()]
-        parts += [f"{k} = {v:.3g}" for k, v in self.derived(scene, values).items() if v is not None]
+    def summary(self, scene, values: dict[str, float], omit=()) -> str:
+        """One line for a MAP estimate (what `galileo infer` prints after "MAP: "), leaving out
+        the latents and derived quantities named in `omit` (those not identified)."""
+        parts = [f"{k} = {v:.3f}" for k, v in values.items() if k not in omit]
+        parts += [f"{k} = {v:.3g}" for k, v in self.derived(scene, values).items() if v is not None and k not in omit]
         return ", ".join(parts)
 
     # what `galileo predict` may ask this scenario's results (galileo.capabilities.Question)

@@ -119,6 +119,7 @@ class InferenceResult:
     warmup: int = 0              # sweeps of width adaptation (dropped from the summaries with the burn-in)
     moves: dict | None = None    # {"set": default|paper|fitted, "joint": names, "codes": {name: site code(s)}, "adapted"}
     notes: tuple = ()            # what the observations say about themselves (e.g. nothing moves), shown to users
+    tracks: object = None        # the tracks inferred from (a problem's list), if known: what they identify
 
     @property
     def map_index(self) -> tuple[int, int]:
@@ -149,8 +150,14 @@ class InferenceResult:
         """Posterior summaries of the scenario's derived quantities (e.g. the ramp's mass
         ratio, the identified quantity), one value per kept draw; a positive quantity also gets
         its log's summary (`log_<name>`)."""
-        return derived_summaries(registry.of(self.scene), self.scene, self.names,
-                                 self.kept().reshape(-1, len(self.names)))
+        out = derived_summaries(registry.of(self.scene), self.scene, self.names, self.kept().reshape(-1, len(self.names)))
+        gone = self.unidentified()
+        return {k: v for k, v in out.items() if k not in gone and not (k.startswith("log_") and k[4:] in gone)}
+
+    def unidentified(self) -> dict[str, str]:
+        """What the video(s) do not identify, with why (`Scenario.not_identified`; result.json's
+        "not_identified"): such a derived quantity gets no point estimate and no summary."""
+        return registry.of(self.scene).unidentified(self.scene, self.tracks)
 
     def per_chain(self) -> list[dict]:
         """Per chain: acceptance, its kept log-likelihood (median, max), its kept mean of each
@@ -193,17 +200,23 @@ class InferenceResult:
                 "sweeps": int(self.samples.shape[1]), "per_chain": self.per_chain()}
 
     def derived(self) -> dict:
-        return registry.of(self.scene).derived(self.scene, self.map)
+        """The scenario's derived quantities at the MAP (None for one not identified)."""
+        gone = self.unidentified()
+        return {k: None if k in gone else v for k, v in registry.of(self.scene).derived(self.scene, self.map).items()}
 
     def at_prior_edge(self) -> list[str]:
         """The latents whose MAP lies within EDGE_FRACTION of its prior's width from a bound that
         is not the latent's own limit: the data pull past what the prior allows (a prior too
         narrow, or the model missing something that the latent bends to absorb); such a MAP is
-        not an estimate of that latent."""
+        not an estimate of that latent. A latent the video does not identify (`unidentified`) is
+        not said: its posterior is its prior's."""
         specs = getattr(self.scene, "latent_specs", None)
+        gone = self.unidentified()
         limits = {lat.name: lat.limits for lat in specs()} if specs is not None else {}
         out = []
         for n, v in self.map.items():
+            if n in gone:
+                continue
             lo, hi = self.settings.bounds[n]
             low, high = limits.get(n, (-math.inf, math.inf))
             near = EDGE_FRACTION * (hi - lo)
@@ -231,7 +244,7 @@ class InferenceResult:
                 "converged": diag["converged"], "why_not": diag["why_not"], "notes": list(self.notes),
                 "map_at_prior_edge": self.at_prior_edge(),
                 "init": self.init or {"starts": "prior"},
-                "not_identified": registry.of(self.scene).unidentified(self.scene),
+                "not_identified": self.unidentified(),
                 "posterior": self.posterior(), "posterior_derived": self.derived_posterior(),
                 "diagnostics": diag, "timing_s": self.timing_s,
                 "config": config, "latents": list(self.names), "scene": self.scene.to_json(), "samples_file": None}

@@ -602,7 +602,7 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
                                      "workers": workers},
         steps=int(sum(r["steps"] for r in merged)), scene=prepared, init=info, warmup=warmup,
         moves={"set": cfg.moves, "joint": move_names, "codes": _move_codes(independence, moves),
-               "adapted": adapted if warmup else None})
+               "adapted": adapted if warmup else None}, tracks=tracks)
 
 
 MIN_BLOCK_SWEEPS = 25

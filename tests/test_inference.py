@@ -418,7 +418,9 @@ def test_cli_infer_writes_result(cli_result):
     assert set(d["map"]) == set(LATENT_NAMES)
     assert (out.parent / d["samples_file"]).exists()
     assert load_samples(out.parent / d["samples_file"])["samples"].shape == (2, 2, 4)
-    assert stdout.startswith("MAP: m1_kg = ") and "m1/m2 = " in stdout and f"wrote {out}" in stdout
+    # the headline leads with what a collision identifies, and says what it does not
+    assert stdout.startswith("MAP: k1 = ") and "m1/m2 = " in stdout and f"wrote {out}" in stdout
+    assert "not identified: m1_kg, m2_kg: only the ratio" in stdout and "m1_kg = " not in stdout
 
 
 @pytest.mark.parametrize("change, needle", [

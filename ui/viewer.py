@@ -664,7 +664,7 @@ class Viewer:
                                           title=TRACE_TITLE, aspect=1.4)
             self.init_text = g.add_markdown(init_markdown(ctrl.init_info, ctrl.names, ctrl.scenario.starts_doc))
             self.unidentified_text = g.add_markdown(unidentified_markdown(
-                ctrl.scenario.unidentified(ctrl.likelihood_scene)))
+                ctrl.scenario.unidentified(ctrl.likelihood_scene, ctrl.tracks)))
             self.tracking_text = g.add_markdown(tracking_markdown(ctrl.tracks))
             self._recognized = recognition_curves(ctrl.init_info, ctrl.names)
             self.hist_plots = {}

@@ -101,16 +101,13 @@ class FallScenario(Scenario):
                 seen[name] = seen.get(name, 0) + 1
         return tuple(n for n, c in seen.items() if c > 1 and n.startswith(("e_", "mu_")))
 
-    def not_identified(self, prepared_scenes, fixed):
+    def not_identified(self, prepared_scenes, fixed, tracks=None):
         out = {}
         for s in prepared_scenes:
             out[object_mass_latent(s.object)] = ("not a latent: a rigid object's fall, bounce and slide on a fixed "
                                                  "surface do not depend on its mass (gravity, contact and friction "
                                                  "forces all scale with it)")
         return out
-
-    def unidentified(self, scene):
-        return self.not_identified([scene], {})
 
     # -- physics and likelihood -----------------------------------------------------------------
     def simulate(self, scene, n_frames, values=None, fps=None):

@@ -124,15 +124,20 @@ class RampScenario(Scenario):
             objects.append(Mesh(obj.name, np.asarray(m.vertices), np.asarray(m.faces), OBJECT_COLORS[i % 2]))
         return Drawing(static=(ramp,), objects=tuple(objects), ground_z_m=0.0)
 
+    def not_identified(self, prepared_scenes, fixed, tracks=None):
+        from .identify import not_identified
+
+        return not_identified(prepared_scenes, fixed, tracks)
+
     def derived(self, scene, values):
         if "m2_kg" in values:
             return {"mass_ratio": values["m1_kg"] / values["m2_kg"]}
         return {"mass_ratio": None}
 
-    def summary(self, scene, values):
-        ratio = self.derived(scene, values)["mass_ratio"]
-        return ", ".join(f"{k} = {v:.3f}" for k, v in values.items()) + (
-            f", m1/m2 = {ratio:.2f}" if ratio is not None else "")
+    def summary(self, scene, values, omit=()):
+        ratio = None if "mass_ratio" in omit else self.derived(scene, values)["mass_ratio"]
+        return ", ".join([f"{k} = {v:.3f}" for k, v in values.items() if k not in omit]
+                         + ([f"m1/m2 = {ratio:.2f}"] if ratio is not None else []))
 
     @property
     def questions(self):

@@ -203,9 +203,9 @@ class SplashScenario(Scenario):
         volume_cm3 = scene.obj.volume_cm3 * math.exp(values.get("log_volume_factor", scene.log_volume_factor))
         return {"mass_kg": values["density_g_cm3"] * volume_cm3 * CM3 * 1000.0, "volume_cm3": volume_cm3}
 
-    def summary(self, scene, values):
+    def summary(self, scene, values, omit=()):
         d = self.derived(scene, values)
-        return (", ".join(f"{k} = {v:.4g}" for k, v in values.items())
+        return (", ".join(f"{k} = {v:.4g}" for k, v in values.items() if k not in omit)
                 + f"; mass {1000 * d['mass_kg']:.4g} g from a volume of {d['volume_cm3']:.4g} cm^3")
 
 
