@@ -132,6 +132,49 @@ def psutil_alive(pid: int) -> bool:
 # -- a folder lost while the app runs ----------------------------------------------------------------------
 
 @pytest.mark.timeout(300)
+def test_a_save_that_fails_once_in_a_folder_still_there_is_made_again(demo, tmp_path, monkeypatch):
+    """A folder being deleted fails a save before it is gone (the race that stopped inference
+    under load): a periodic save that fails once, the folder still there, keeps the session
+    dirty and the chains running, and the next save writes everything; one that keeps failing
+    stops inference (SAVE_RETRIES) rather than pretend."""
+    import ui.controller as controller_module
+
+    real, failures = sess.write_state, {"left": 0}
+
+    def flaky(*a, **k):
+        if failures["left"]:
+            failures["left"] -= 1
+            raise OSError("No such file or directory: a save's temporary file (the folder is being deleted)")
+        return real(*a, **k)
+
+    monkeypatch.setattr(sess, "write_state", flaky)
+    folder = tmp_path / "s"
+    ctl = Controller(*demo, chains=2, seed=3, workers=1, sweeps=None, session_dir=folder, save_every_s=0.05)
+    failures["left"] = 1    # the first periodic save fails
+    try:
+        ctl.start()
+        assert wait_until(lambda: failures["left"] == 0 and rounds_on_disk(folder) >= 3 if (folder / sess.CHAINS_FILE).exists()
+                          else False, 120)
+        assert ctl.status()["session"]["note"] is None      # nothing was lost, nothing to say
+        ctl.stop()
+        ctl.save()
+    finally:
+        ctl.close()
+    assert rounds_on_disk(folder) == ctl.status()["rounds"]
+    failures["left"] = controller_module.SAVE_RETRIES       # and a folder that keeps refusing: the error
+    back = Controller.load(folder, workers=1, save_every_s=0.05)
+    try:
+        back._dirty = True
+        for _ in range(controller_module.SAVE_RETRIES - 1):
+            back.save(retry=True)
+        with pytest.raises(OSError):
+            back.save(retry=True)
+    finally:
+        failures["left"] = 0
+        back.close()
+
+
+@pytest.mark.timeout(300)
 @pytest.mark.parametrize("how", ["deleted", "renamed"])
 def test_a_lost_folder_is_never_written_again_and_the_session_goes_to_a_new_one(demo, tmp_path, capfd, how):
     """The folder deleted (or renamed) while chains run: nothing is written under its old name

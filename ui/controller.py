@@ -107,6 +107,7 @@ PAPER_SWEEPS = 75          # the paper's sweeps per chain (the sweep target's an
 # worker deaths: the pool is made anew and the round run again, unless this many died in a row
 # (no round completed between them) within this many seconds: then every chain pauses
 WORKER_DEATHS_IN_A_ROW = 3
+SAVE_RETRIES = 3           # periodic saves failing in a row, the folder still there, before inference stops
 WORKER_DEATHS_WINDOW_S = 60.0
 # a round's deadline (then its workers count as hung): this floor (a new pool's first round builds
 # its likelihoods; a busy machine) plus this many times the slowest sweep so far, per sweep a worker runs
@@ -353,6 +354,7 @@ class Controller:
         self._session_lock: sess.SessionLock | None = None
         self._session_note: str | None = None   # the session folder was lost: what happened, where it is saved now
         self._saving = session_dir is not None  # False once the folder is lost and could not be recovered
+        self._save_failures = 0                 # saves failed in a row in a folder still there (SAVE_RETRIES)
 
     # -- workers ------------------------------------------------------------------------------------------
     def _start_pool(self):
@@ -807,9 +809,7 @@ class Controller:
                 # running until converged the batch runner's next block (then the verdict)
                 top = max(self._chains[c].sweep for c in changed)
                 u = self._until
-                step = self._block if u is None else max(MIN_BLOCK_SWEEPS, top // 2)
-                if u is not None and top < u["max_sweeps"]:
-                    step = min(step, u["max_sweeps"] - top)
+                step = self._block if u is None else block_after(top, max(u["max_sweeps"], top + MIN_BLOCK_SWEEPS))
                 if top >= self._target and step:
                     self._target = top + step
                     detail["target"] = self._target
@@ -1174,12 +1174,14 @@ class Controller:
         folder is still the session's (a folder lost while the chains are paused is noticed too)."""
         if (self.session_dir is not None and self._saving and time.monotonic() - self._last_save >= self.save_every_s
                 and (self._dirty or self._session_lock.lost())):
-            self.save()
+            self.save(retry=True)
 
-    def save(self) -> None:
+    def save(self, retry: bool = False) -> None:
         """Write the session now (no-op without a session_dir, or once its folder was lost and
         could not be recovered). Never into a folder deleted, moved or replaced since it was
-        opened: the whole session goes to a new folder beside it instead (`_session_lost`)."""
+        opened: the whole session goes to a new folder beside it instead (`_session_lost`).
+        `retry` (the periodic saves): a write that fails in a folder still there (one being
+        deleted fails it first) is tried again at the next save, SAVE_RETRIES times in a row."""
         if self.session_dir is None or not self._saving:
             return
         with self._save_lock:
@@ -1204,11 +1206,17 @@ class Controller:
             state = {"settings": settings, "events": events, "chains": chains, "record": record}
             try:
                 sess.write_state(self.session_dir, **state, lock=self._session_lock)
+                self._save_failures = 0
             except (OSError, GalileoError):
                 why = self._session_lock.lost() if self._session_lock is not None else None
                 if why is None:
+                    # a folder being deleted fails the write before it is gone: the next save looks again
+                    # (the session stays dirty); a write that keeps failing in a folder still there is the error
                     self._dirty = True
-                    raise
+                    self._save_failures += 1
+                    if not retry or self._save_failures >= SAVE_RETRIES:
+                        raise
+                    return
                 self._session_lost(why, state)
             self._last_save = time.monotonic()
 
