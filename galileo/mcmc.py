@@ -299,6 +299,8 @@ class RayMove(NamedTuple):
 FITTED_DF = 5.0          # the fitted independence move: a multivariate Student-t of this many degrees of freedom ...
 FITTED_INFLATE = 1.5     # ... its scale this many times the warm-up draws' covariance's (a heavier, wider q
                          # than the posterior: the Hastings ratio is bounded where q's tails cover p's)
+FITTED_TRIM_LEVEL = 0.975  # ... fitted to the draws within this chi-square quantile of a first fit (twice):
+FITTED_TRIM_ROUNDS = 2     # a chain the warm-up left 10 nats below the rest widened q, and cut its acceptance by half
 FITTED_WEIGHT = 0.8      # ... the rest of its mass the prior's box (a defensive uniform: q covers all of it)
 
 
@@ -365,12 +367,30 @@ class FittedIndependence(NamedTuple):
         return x, self.logq(old) - lq_new
 
 
+def _chi2_quantile(p: float, dof: int) -> float:
+    from scipy.stats import chi2
+
+    return float(chi2.ppf(p, dof))
+
+
+def _trim_consistency(p: float, dof: int) -> float:
+    """The factor that makes the covariance of normal draws within their `p` ellipsoid that
+    of all of them (the reweighted MCD's: p / P(chi2 with dof + 2 <= the p quantile))."""
+    from scipy.stats import chi2
+
+    return p / float(chi2.cdf(chi2.ppf(p, dof), dof + 2))
+
+
 def fit_independence(draws: np.ndarray, sites: Sequence[int], log_sites: Sequence[int], bounds: np.ndarray,
                      inflate: float = FITTED_INFLATE) -> FittedIndependence | None:
     """The move's q fitted to `draws` (N, D: every chain's warm-up draws, pooled): the t's
     centre the draws' mean and its scale `inflate` times their covariance's Cholesky factor in
     the transformed space (a latent whose draws do not vary gets a floor of
-    width: a hundred-thousandth of its prior's, for the factor only); None with fewer draws than twice the sites or a non-finite fit."""
+    width: a hundred-thousandth of its prior's, for the factor only), both taken over the draws
+    within the FITTED_TRIM_LEVEL ellipsoid of the fit before (FITTED_TRIM_ROUNDS times; the
+    covariance scaled back by the normal's consistency factor), so a chain the warm-up left
+    far from the others does not widen q (its region stays covered by the t's tails and the
+    box); None with fewer draws than twice the sites or a non-finite fit."""
     draws = np.asarray(draws, float)
     sites = tuple(int(i) for i in sites)
     log_sites = tuple(int(i) for i in log_sites if i in sites)
@@ -385,12 +405,22 @@ def fit_independence(draws: np.ndarray, sites: Sequence[int], log_sites: Sequenc
             y[:, k] = np.log(y[:, k])
     span = np.array([math.log(bounds[i, 1] / bounds[i, 0]) if i in log_sites and bounds[i, 0] > 0
                      else bounds[i, 1] - bounds[i, 0] for i in sites])
-    cov = np.atleast_2d(np.cov(y.T)) + np.diag((1e-5 * span) ** 2)
+    floor = np.diag((1e-5 * span) ** 2)
+    loc, cov = y.mean(axis=0), np.atleast_2d(np.cov(y.T)) + floor
+    for _ in range(FITTED_TRIM_ROUNDS):   # without the draws of chains that the warm-up left far from the rest
+        try:
+            d2 = np.sum(np.linalg.solve(np.linalg.cholesky(cov), (y - loc).T) ** 2, axis=0)
+        except np.linalg.LinAlgError:
+            return None
+        keep = d2 <= _chi2_quantile(FITTED_TRIM_LEVEL, len(sites))
+        if keep.sum() < 2 * len(sites):
+            break
+        loc = y[keep].mean(axis=0)
+        cov = np.atleast_2d(np.cov(y[keep].T)) * _trim_consistency(FITTED_TRIM_LEVEL, len(sites)) + floor
     try:
         chol = np.linalg.cholesky(cov) * inflate
     except np.linalg.LinAlgError:
         return None
-    loc = y.mean(axis=0)
     if not (np.all(np.isfinite(chol)) and np.all(np.isfinite(loc))):
         return None
     return FittedIndependence(sites, log_sites, tuple(map(float, loc)), _rows(chol),
