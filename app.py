@@ -125,9 +125,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="chains to start (default: the demo's, ramp 16, splash 50)")
     p.add_argument("--sweeps", type=sweeps_int, default=75,
                    help=f"sweeps per chain before it pauses (resume to go on; 1-{MAX_SWEEPS})")
-    p.add_argument("--moves", choices=["default", "paper"], default=None,
+    p.add_argument("--moves", choices=["default", "paper", "fitted"], default=None,
                    help="default: widths adapted in a warm-up (the first half of --sweeps) plus the scenario's exact "
-                        "joint moves; paper: Galileo section 3.2 exactly (a new session; default: default)")
+                        "joint moves; paper: Galileo section 3.2 exactly; fitted: default plus, once every chain is "
+                        "past the warm-up, an exact independence move fitted to their warm-ups (galileo infer "
+                        "--moves fitted) (a new session; default: default)")
     p.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
                    help="after --sweeps, run on until every latent's R-hat <= R and its bulk and tail ESS >= "
                         "--min-ess (e.g. 1.01), or until --max-sweeps; then pause")

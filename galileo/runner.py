@@ -13,8 +13,9 @@ prior, `initial_positions(bounds, c + 1, seed)[c]`; the splash starts as its see
 
 Move sets (`RunConfig.moves`): "paper" is Galileo 3.2 as published; "default" adds warm-up
 adaptation of the widths and joint moves (`default_moves`: the scenario's own and an
-adaptive joint random walk); "fitted" (`infer` only) adds, after the warm-up, an independence
-move fitted to every chain's warm-up draws (`fitted_move`): from then on a chain depends on
+adaptive joint random walk); "fitted" adds, after the warm-up, an independence
+move fitted to every chain's warm-up draws (`fitted_move`; `infer`, and the app's controller
+once every chain is past the warm-up): from then on a chain depends on
 the others' warm-ups too (still only on the seed and the settings). A task carries its chain's adapted widths and moves, so a
 chain continued in another task (`next_task`: the batch runner's blocks when it runs until
 converged, the controller's rounds) is the same chain.
@@ -59,8 +60,7 @@ from .mcmc import JointRW, MHState, Proposal, adapt, chain_rng, fit_independence
 from .progress import tqdm
 from .results import MIN_ESS, RHAT_TARGET, InferenceResult, convergence, kept_draws
 
-MOVE_SETS = ("default", "paper")           # what the app's controller runs
-BATCH_MOVE_SETS = (*MOVE_SETS, "fitted")    # ... and `infer` (batch: the fitted move needs every chain's warm-up at once)
+MOVE_SETS = ("default", "paper", "fitted")  # what `infer` and the app's controller run
 FITTED_PER_SWEEP = 12                       # "fitted": its proposals a sweep after the warm-up (the demo converged
                                             # in 757, 337, 225 sweeps with 3, 6, 12: each accepted one is a fresh draw)
 FITTED_MIN_WARMUP = 10                      # "fitted": fewer warm-up sweeps than this fit nothing
@@ -208,8 +208,8 @@ class RunConfig:
             raise GalileoError(f"workers must be an integer >= 1, got {self.workers!r}")
         if int(self.seed) != self.seed or self.seed < 0:
             raise GalileoError(f"seed must be an integer >= 0, got {self.seed!r}")
-        if self.moves not in BATCH_MOVE_SETS:
-            raise GalileoError(f"moves must be one of {', '.join(BATCH_MOVE_SETS)}, got {self.moves!r}")
+        if self.moves not in MOVE_SETS:
+            raise GalileoError(f"moves must be one of {', '.join(MOVE_SETS)}, got {self.moves!r}")
         if self.warmup is not None and (isinstance(self.warmup, bool) or int(self.warmup) != self.warmup
                                         or not 0 <= self.warmup <= self.sweeps):
             raise GalileoError(f"warmup must be an integer from 0 to the sweeps ({self.sweeps}), got {self.warmup!r}")

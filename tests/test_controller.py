@@ -140,6 +140,43 @@ def test_chains_equal_the_batch_runner(demo, make, moves):
         assert (res.proposals["site"] >= 0).all()
 
 
+def test_the_fitted_move_set_equals_the_batch_runner_and_comes_back_with_the_session(demo, make, tmp_path):
+    """--moves fitted in the app: once every chain is past its warm-up (10 sweeps), the move
+    fitted to their warm-ups joins every chain's moves, as in `galileo infer --moves fitted`:
+    the same chains bit for bit; recorded once ("fitted", q in full); a reopened session runs
+    on with it, as the chains that never stopped do; too short a warm-up is refused."""
+    from galileo.runner import FITTED_PER_SWEEP
+
+    res = infer(*demo, InferenceConfig(chains=3, sweeps=14, warmup=10, seed=2, workers=1, moves="fitted"),
+                progress=False)
+    ctl = make(chains=3, seed=2, workers=1, moves="fitted", sweeps=14, warmup=10, session_dir=tmp_path / "s")
+    assert ctl.run_sweeps(20) == 14
+    assert_batch_chains(ctl, res)
+    fits = [e for e in ctl.events if e["kind"] == "fitted"]
+    assert len(fits) == 1 and fits[0]["detail"]["sweep"] == 10 and fits[0]["detail"]["move"]["name"] == "fitted"
+    fitted_sites = res.moves["codes"]["fitted"]
+    assert np.isin(ctl.proposals(0)["site"], fitted_sites).sum() == 4 * FITTED_PER_SWEEP   # sweeps 11-14
+    assert ctl.status()["moves"]["joint"].count("fitted") == 1
+    assert ctl.status()["moves"]["acceptance"]["fitted"] == res.diagnostics()["acceptance"]["fitted_move"]
+    # on past the target: the chains that stopped and reopened are the chains that never stopped
+    on = make(chains=3, seed=2, workers=1, moves="fitted", sweeps=14, warmup=10)
+    on.run_sweeps(14)
+    ctl.save()
+    ctl.close()
+    back = Controller.load(tmp_path / "s", workers=1)
+    try:
+        for c in (back, on):
+            c.resume()
+            c.run_sweeps(3)
+        for c in range(3):
+            assert np.array_equal(back.samples(c), on.samples(c))
+        assert [e["kind"] for e in back.events].count("fitted") == 1
+    finally:
+        back.close()
+    with pytest.raises(GalileoError, match="warm-up of at least"):
+        make(chains=2, moves="fitted", sweeps=12)
+
+
 def test_run_until_converged_equals_the_batch_runner(demo, make):
     """--until-rhat in the app: held at the sweep target, checked, run on in the batch runner's
     blocks until the budget (4 sweeps, then 2 more: never converged this short) and the

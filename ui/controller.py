@@ -95,8 +95,9 @@ from galileo.joint import tracks_from_json, tracks_to_json
 from galileo.latents import as_number, by_name, check_bounds, check_noise, check_widths
 from galileo.mcmc import chain_rng, move_code
 from galileo.results import MIN_ESS, RHAT_TARGET, burn_in, convergence, derived_summaries
-from galileo.runner import (MIN_BLOCK_SWEEPS, MOVE_SETS, PROPOSAL_FIELDS, ChainTask, LocalPool, Problem, RunConfig,
-                            Settings, WorkerDied, WorkerHung, block_after, default_moves, run_task, scene_for_moves)
+from galileo.runner import (FITTED_MIN_WARMUP, FITTED_PER_SWEEP, MIN_BLOCK_SWEEPS, MOVE_SETS, PROPOSAL_FIELDS, ChainTask, LocalPool,
+                            Problem, RunConfig, Settings, WorkerDied, WorkerHung, block_after, default_moves,
+                            fitted_move, run_task, scene_for_moves)
 
 from . import session as sess
 
@@ -224,7 +225,7 @@ class Controller:
         `galileo.runner.infer`'s (e.g. `galileo.recognition.model.recognition_init`): its
         proposal decides where this and every later chain starts (recorded in the session).
 
-        `moves`: "default" or "paper" (see the module docstring); `sweeps`: the sweep target at
+        `moves`: "default", "paper" or "fitted" (see the module docstring; "fitted": `_maybe_fit`); `sweeps`: the sweep target at
         which each chain pauses (None: never); `warmup`: sweeps of width adaptation (default:
         `galileo infer`'s for these sweeps (`RunConfig.warmup_sweeps`: half of them, with
         until_rhat at least 100 or all; 75's without a target); always 0 with "paper");
@@ -259,7 +260,10 @@ class Controller:
         # the warm-up as `galileo infer` takes it for these sweeps (none with "paper")
         self._warmup = RunConfig(sweeps=sweeps or PAPER_SWEEPS, moves=moves, warmup=warmup,
                                  until_rhat=until_rhat).warmup_sweeps()
-        if moves == "default":
+        if moves == "fitted" and self._warmup < FITTED_MIN_WARMUP:
+            raise GalileoError(f"moves fitted needs a warm-up of at least {FITTED_MIN_WARMUP} sweeps to fit its move to "
+                               f"(this session's: {self._warmup}; more sweeps)")
+        if moves in ("default", "fitted"):
             self._moves0 = default_moves(scenario, lik_scene, tracks, latents, self._bounds_array(), self._settings)
         self._adapt_until = self._warmup
         self._target = sweeps
@@ -336,6 +340,7 @@ class Controller:
         # moves, warm-up, sweep target, run until converged (a session recorded before them: the paper's kernel)
         self.moves_set = "paper"
         self._moves0: tuple = ()          # every new chain's joint moves (as built, before adaptation)
+        self._fitted = False              # "fitted": whether the move was fitted (`_maybe_fit`)
         self._warmup = 0                  # sweeps of width adaptation (dropped with the burn-in)
         self._adapt_until = 0             # chains adapt in their sweeps 1..this (0 once a user set the widths)
         self._target: int | None = None   # each running chain pauses (held) when it reaches this sweep
@@ -489,6 +494,7 @@ class Controller:
                     if self._target is not None and before < self._target <= ch.sweep and not ch.paused:
                         ch.paused = ch.held = True
                         held.append(ch.id)
+                self._maybe_fit()
                 self._rounds += 1
                 self._in_flight = False
                 self._dirty = True
@@ -499,6 +505,27 @@ class Controller:
                 self._until_step()
                 self._cond.notify_all()
             return True
+
+    def _maybe_fit(self) -> None:
+        """The "fitted" move set (under the lock, after a round): once every active chain is past
+        the warm-up, the independence move fitted to their warm-ups' second halves
+        (`galileo.runner.fitted_move`, as `galileo infer --moves fitted`) joins every chain's
+        moves, FITTED_PER_SWEEP proposals a sweep, and every chain made later; once (recorded
+        as a "fitted" event, its q in full; a reopened session has it in its chains' moves)."""
+        if self.moves_set != "fitted" or self._fitted:
+            return
+        active = [ch for _, ch in sorted(self._chains.items()) if not ch.removed]
+        if len(active) < 2 or any(ch.sweep < self._warmup for ch in active):
+            return
+        self._fitted = True
+        q = fitted_move(self.latents, self._bounds_array(), [ch.samples.get() for ch in active], self._warmup)
+        if q is not None:
+            more = (q,) * FITTED_PER_SWEEP
+            for ch in active:
+                ch.moves = tuple(ch.moves) + more
+            self._moves0 = tuple(self._moves0) + more
+        self._event("fitted", {"chains": [ch.id for ch in active], "sweep": self._warmup,
+                               "move": None if q is None else sess.move_to_json(q)})
 
     def _round_deadline_s(self, n_tasks: int) -> float:
         """How long a round of `n_tasks` one-sweep tasks may take before its workers count as
@@ -1105,8 +1132,13 @@ class Controller:
                              "narrow": sess.proposal_to_json(ch.proposal)["narrow"]}
             acc = {n: (float(self._acc_k[j] / self._acc_n[j]) if self._acc_n[j] else None)
                    for j, n in enumerate(self.names)}
-            move_acc = {m.name: (float(self._mv_k[k] / self._mv_n[k]) if k < len(self._mv_n) and self._mv_n[k]
-                                 else None) for k, m in enumerate(self._moves0)}
+            counts: dict[str, list[int]] = {}   # by name (the fitted move is made several times a sweep)
+            for k, m in enumerate(self._moves0):
+                n_k = counts.setdefault(m.name, [0, 0])
+                if k < len(self._mv_n):
+                    n_k[0] += int(self._mv_n[k])
+                    n_k[1] += int(self._mv_k[k])
+            move_acc = {name: (k / n if n else None) for name, (n, k) in counts.items()}
             best = self.map()
             rhat_target = self._until["until_rhat"] if self._until else RHAT_TARGET
             key = (self._rounds, len(self._events), rhat_target, self._min_ess,
@@ -1121,7 +1153,7 @@ class Controller:
                    "physics_steps": self._steps, "chains": chains,
                    "removed": [c for c, ch in sorted(self._chains.items()) if ch.removed],
                    "acceptance": acc,
-                   "moves": {"set": self.moves_set, "joint": [m.name for m in self._moves0], "acceptance": move_acc,
+                   "moves": {"set": self.moves_set, "joint": list(counts), "acceptance": move_acc,
                              "warmup": self._warmup,
                              "adapting": any(ch.sweep < self._adapt_until for ch in self._chains.values()
                                              if not ch.removed and not ch.paused)},
@@ -1324,6 +1356,9 @@ class Controller:
                 raise ValueError(f"init: unknown moves {moves_set!r}")
             warmup = _whole(detail.get("warmup", 0), "init: warmup", 0)
             moves0 = tuple(sess.move_from_json(m, dim) for m in detail.get("joint_moves", []))
+            fit = next((e for e in events[:n_events] if e["kind"] == "fitted"), None)   # ("fitted": the move, once)
+            if fit is not None and isinstance(fit.get("detail"), dict) and fit["detail"].get("move") is not None:
+                moves0 += (sess.move_from_json(fit["detail"]["move"], dim),) * FITTED_PER_SWEEP
             if moves_set == "paper" and (moves0 or warmup):
                 raise ValueError("init: the paper's moves with joint moves or a warm-up")
         record = sess.read_record(folder)
@@ -1335,6 +1370,7 @@ class Controller:
         self._rounds, self._next_id, self._steps = rounds, next_id, steps
         self._events = events[:n_events]
         self.moves_set, self._warmup, self._moves0, self._adapt_until = moves_set, warmup, moves0, adapt_until
+        self._fitted = fit is not None
         self._target, self._until = target, until
         block = sweeps if sweeps is not None else detail.get("sweeps")
         self._block = block if isinstance(block, int) and block >= 1 else None
