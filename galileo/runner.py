@@ -514,8 +514,8 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
     FITTED_PER_SWEEP proposals a sweep of an independence move fitted to all chains' warm-up
     draws (`fitted_move`), frozen from then on.
 
-    With `config.until_rhat`, chains run `config.sweeps` sweeps and then on, in blocks of half
-    what they have done (at least 25), until every latent's rank-normalised split R-hat is at
+    With `config.until_rhat`, chains run `config.sweeps` sweeps and then on, in blocks of a
+    tenth of what they have done (at least 10: `block_after`), until every latent's rank-normalised split R-hat is at
     most `until_rhat` and its bulk and tail ESS at least `min_ess`, or until `max_sweeps`.
     A chain's draws depend only on (seed, chain, settings): how the sweeps are cut into blocks
     does not change them. With `progress`, the bar counts sweeps as they are done: each chain's

@@ -553,8 +553,8 @@ class Controller:
     def _until_step(self, base_from_paused: bool = False) -> None:
         """Run until converged (under the lock, after a round): once no active chain runs and
         some are held at the target, the verdict on the kept draws; unless converged or the
-        budget is spent, the target grows like the batch runner's blocks (max(25, half what is
-        done), up to the budget) and the held chains run on. `base_from_paused` (turning the
+        budget is spent, the target grows like the batch runner's blocks (`block_after`: a
+        tenth of what is done, at least 10, up to the budget) and the held chains run on. `base_from_paused` (turning the
         mode on with every chain stopped) treats every paused chain at or past the target as held."""
         u = self._until
         if u is None:
