@@ -18,6 +18,7 @@ the latents and the trajectory are the clean video's. Deterministic per seed; bu
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,7 +32,9 @@ from .physics import Simulator
 from .scene import Ramp, Scene, SceneObject, default_camera
 from ...shapes import Shape
 
-PRESETS = ("demo", "small", "full")
+PRESETS = ("demo", "small", "full", "bounce")
+BOUNCE_RESTITUTION = (0.2, 0.4)   # "bounce": the collision's restitution, uniform over this (issue 30) ...
+BOUNCE_MAX_FRICTION = 0.28        # ... the objects of friction below this (at 20 degrees all but one reach the target)
 TARGET_CYCLE = ("cardboard", "foam", "none")
 FPS = 30.0
 MIN_DURATION_S, MAX_DURATION_S, TAIL_S = 2.0, 4.0, 0.5
@@ -46,6 +49,8 @@ class VideoSpec:
     target: str  # cardboard | foam | none
     seed: int
     camera: str = "clean"   # the camera effects it is filmed through (galileo.footage's name)
+    restitution: float | None = None   # the collision's restitution (None: the objects' own, 0); the scene
+                                       # file leaves it out: a user's does not know it (truth.json has it)
 
 
 def _demo_object() -> CatalogueObject:
@@ -60,6 +65,19 @@ def plan(preset: str, seed: int = 0, camera: str = "clean") -> list[VideoSpec]:
     if preset == "demo":
         return [VideoSpec("demo", _demo_object(), 20.0, "cardboard", seed, camera)]
     objs = catalogue(seed)
+    if preset == "bounce":
+        # every catalogue object that slides at 20 degrees into the target (friction below BOUNCE_MAX_FRICTION:
+        # above it most stop before the target), the collision bouncing
+        specs = []
+        sliding = [o for o in objs if o.friction < BOUNCE_MAX_FRICTION]
+        for i, obj in enumerate(sliding):
+            target = TARGET_CYCLE[i % 2]
+            vseed = int(np.random.SeedSequence([seed, 1000 + i]).generate_state(1)[0])
+            e = float(np.random.default_rng([vseed, 7]).uniform(*BOUNCE_RESTITUTION))
+            slug = obj.material.replace(" ", "-")
+            specs.append(VideoSpec(f"{i:03d}_{slug}{obj.index}_20deg_{target}_e{round(100 * e):02d}", obj, 20.0,
+                                   target, vseed, camera, e))
+        return specs
     if preset == "small":
         # one object from each of 10 materials, spread over the friction range
         picks = ["metal coin", "metal pole", "porcelain", "plastic block", "plastic ring",
@@ -87,7 +105,8 @@ def scene_for(spec: VideoSpec) -> Scene:
         shape, mass, friction = sample_target(spec.target, rng)
         objects.append(SceneObject("target", "target", shape, mass, friction, material=spec.target,
                                    kind=spec.target, distance_m=float(rng.uniform(0.08, 0.14))))
-    scene = Scene(Ramp(angle_deg=spec.angle_deg), tuple(objects), camera=default_camera(FPS))
+    scene = Scene(Ramp(angle_deg=spec.angle_deg), tuple(objects), camera=default_camera(FPS),
+                  collision_restitution=spec.restitution)
     scene.validate()
     return scene
 
@@ -111,6 +130,8 @@ def truth_json(scene: Scene, spec: VideoSpec, traj) -> dict:
     if scene.target is not None:
         t = scene.target
         latents.update({"m2_kg": t.mass_kg, "k2": t.friction, "shape2": t.shape.to_json()})
+        if scene.collision_restitution is not None:
+            latents["e_collision"] = scene.collision_restitution
     return {"latents": latents, "trajectory": traj.to_json()}
 
 
@@ -132,10 +153,11 @@ def render_one(spec: VideoSpec, out_dir: str) -> dict:
     if footage is not None:
         scene = dataclasses.replace(scene, camera=footage.camera)
         truth["camera"] = {"name": spec.camera, **footage.to_json()}
-    scene.save(folder / "scene.json")
+    dataclasses.replace(scene, collision_restitution=None).save(folder / "scene.json")   # (the user's: unknown)
     write_json(folder / "truth.json", truth, indent=None)
     return {"name": spec.name, "material": spec.obj.material, "object": f"{spec.obj.material}#{spec.obj.index}",
-            "angle_deg": spec.angle_deg, "target": spec.target, "n_frames": n}
+            "angle_deg": spec.angle_deg, "target": spec.target, "n_frames": n,
+            **({"restitution": spec.restitution} if spec.restitution is not None else {})}
 
 
 DATASET = dataset.DatasetSpec("ramp", PRESETS, plan, render_one, index_names_scenario=False, cameras=True,
