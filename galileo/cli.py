@@ -390,9 +390,11 @@ def cmd_infer(args: argparse.Namespace) -> int:
                     workers=args.workers, noise=args.sigma, speedups=not args.no_speedups, narrow=args.narrow,
                     broad=args.broad, broad_every=args.broad_every, moves=args.moves, warmup=args.warmup,
                     until_rhat=args.until_rhat, min_ess=args.min_ess, max_sweeps=args.max_sweeps,
-                    priors=priors_arg(args.priors))
+                    max_seconds=args.max_seconds, priors=priors_arg(args.priors))
     if args.max_sweeps is not None and args.until_rhat is None:
         raise GalileoError("--max-sweeps is the budget of --until-rhat; without it, use --sweeps")
+    if args.max_seconds is not None and args.until_rhat is None:
+        raise GalileoError("--max-seconds is a budget of --until-rhat; without it, use --sweeps")
     cfg.check()
     checked_settings(cfg, scenario, scene)
     if args.recognition_move is not None and args.recognition_move < 1:
@@ -436,7 +438,9 @@ def cmd_infer(args: argparse.Namespace) -> int:
         if not k.startswith("log_"):
             print(f"posterior {k}: {v['q50']:.3g} (90%: {v['q05']:.3g}-{v['q95']:.3g})")
     diag = doc["diagnostics"]
-    print(f"{'converged' if diag['converged'] else 'NOT converged'} after {diag['sweeps']} sweeps "
+    budget = {"max_seconds": f": the time budget ({cfg.max_seconds:g} s) is spent",
+              "max_sweeps": f": the sweep budget ({cfg.sweep_budget()}) is spent"}.get(doc["stopped"], "")
+    print(f"{'converged' if diag['converged'] else 'NOT converged'} after {diag['sweeps']} sweeps{budget} "
           f"({convergence_line(diag)})")
     print(f"wrote {args.out} and {npz} ({result.timing_s['wall']:.1f} s, {result.steps} physics steps)")
     warning = warning_of(diag)
@@ -471,7 +475,8 @@ def infer_folder(args: argparse.Namespace) -> int:
                     sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps, seed=args.seed, workers=1,
                     noise=args.sigma, speedups=not args.no_speedups, narrow=args.narrow, broad=args.broad,
                     broad_every=args.broad_every, moves=args.moves, warmup=args.warmup, until_rhat=args.until_rhat,
-                    min_ess=args.min_ess, max_sweeps=args.max_sweeps, priors=priors_arg(args.priors))
+                    min_ess=args.min_ess, max_sweeps=args.max_sweeps, max_seconds=args.max_seconds,
+                    priors=priors_arg(args.priors))
     cfg.check()
     checked_settings(cfg, registry.of(first), first)
     log = (lambda m: print(m, file=sys.stderr)) if not args.quiet else None
@@ -974,6 +979,9 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--min-ess", type=nonneg_float, default=400.0, help="ESS every latent needs (default 400)")
     i.add_argument("--max-sweeps", type=sweeps_int, default=None,
                    help="the sweep budget of --until-rhat (default: 20 x --sweeps)")
+    i.add_argument("--max-seconds", type=positive_float, default=None, metavar="S",
+                   help="a wall-clock budget of --until-rhat (seconds from the start, checked between blocks; the "
+                        "result says \"stopped\": max_seconds and how many sweeps ran: --sweeps N reruns it exactly)")
     i.add_argument("--priors", metavar="JSON", help="merged into the scene file's priors section, e.g. the ramp's "
                    "model-mismatch options '{\"observation\": \"student_t\", \"infer_sigma\": true}'")
     i.add_argument("--out", required=True, type=_type(check_nonempty),

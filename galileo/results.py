@@ -120,6 +120,7 @@ class InferenceResult:
     moves: dict | None = None    # {"set": default|paper|fitted, "joint": names, "codes": {name: site code(s)}, "adapted"}
     notes: tuple = ()            # what the observations say about themselves (e.g. nothing moves), shown to users
     tracks: object = None        # the tracks inferred from (a problem's list), if known: what they identify
+    stopped: str | None = None   # running until converged: "converged", "max_sweeps" or "max_seconds" (its budgets)
 
     @property
     def map_index(self) -> tuple[int, int]:
@@ -238,10 +239,12 @@ class InferenceResult:
                   "bounds": {k: list(v) for k, v in st.bounds.items()},
                   "moves": self.moves or {"set": getattr(cfg, "moves", "paper")},
                   "until_rhat": getattr(cfg, "until_rhat", None), "min_ess": getattr(cfg, "min_ess", None),
-                  "max_sweeps": cfg.sweep_budget() if getattr(cfg, "until_rhat", None) else None}
+                  "max_sweeps": cfg.sweep_budget() if getattr(cfg, "until_rhat", None) else None,
+                  "max_seconds": getattr(cfg, "max_seconds", None)}
         diag = self.diagnostics()
         return {"scenario": self.scenario, "map": self.map, "map_loglik": self.map_loglik, **self.derived(),
-                "converged": diag["converged"], "why_not": diag["why_not"], "notes": list(self.notes),
+                "converged": diag["converged"], "why_not": diag["why_not"], "stopped": self.stopped,
+                "notes": list(self.notes),
                 "map_at_prior_edge": self.at_prior_edge(),
                 "init": self.init or {"starts": "prior"},
                 "not_identified": self.unidentified(),

@@ -168,6 +168,7 @@ class RunConfig:
     until_rhat: float | None = None     # run on until every latent's R-hat <= this (and ESS >= min_ess) ...
     min_ess: float = MIN_ESS
     max_sweeps: int | None = None       # ... or this many sweeps (None: 20 x sweeps)
+    max_seconds: float | None = None    # ... or this many wall seconds since the run began (checked between blocks)
     rhat_target: float = RHAT_TARGET    # what `converged` in a result means (also without until_rhat)
     priors: dict | None = None          # merged into the scene file's "priors" section (e.g. the ramp's
                                         # observation model: {"observation": "student_t", "infer_sigma": true})
@@ -224,6 +225,12 @@ class RunConfig:
         if self.max_sweeps is not None and (isinstance(self.max_sweeps, bool) or int(self.max_sweeps) != self.max_sweeps
                                             or self.max_sweeps < self.sweeps):
             raise GalileoError(f"max_sweeps must be an integer >= the sweeps ({self.sweeps}), got {self.max_sweeps!r}")
+        if self.max_seconds is not None:
+            if isinstance(self.max_seconds, bool) or not isinstance(self.max_seconds, (int, float)) or not (
+                    math.isfinite(self.max_seconds) and self.max_seconds > 0):
+                raise GalileoError(f"max_seconds must be a number of seconds above 0, got {self.max_seconds!r}")
+            if not self.until_rhat:
+                raise GalileoError("max_seconds is a budget of running until converged (until_rhat)")
 
 
 # -- the problem and the task ----------------------------------------------------------------------
@@ -560,6 +567,8 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
     done: list[list[dict]] = [[] for _ in range(cfg.chains)]
     budget = cfg.sweep_budget() if cfg.until_rhat else cfg.sweeps
     status = None
+    stopped = None                        # why running until converged stopped (result's "stopped")
+    t_first, first_done = t0, 0           # the pace of the blocks after the first (with max_seconds)
     try:
         with tqdm(total=cfg.chains * cfg.sweeps, desc="sweeps" if cfg.until_rhat else "chains",
                   unit="sweep", unit_scale=False, disable=not progress) as bar:
@@ -579,9 +588,20 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
                 samples = [np.concatenate([r["positions"] for r in rs]) for rs in done]
                 status = convergence(kept_draws(samples, warmup), names, cfg.until_rhat, cfg.min_ess)
                 bar.set_postfix_str(status["summary"], refresh=False)
-                if status["converged"] or n_done >= budget:
-                    break
+                stopped = ("converged" if status["converged"] else "max_sweeps" if n_done >= budget else None)
                 more = block_after(n_done, budget)
+                if stopped is None and cfg.max_seconds is not None:
+                    # the time left allows so many sweeps at the pace so far (at least one block of MIN_BLOCK_SWEEPS)
+                    left_s = cfg.max_seconds - (time.perf_counter() - t0)
+                    pace = (time.perf_counter() - t_first) / max(n_done - first_done, 1) if first_done else None
+                    if left_s <= 0 or (pace and left_s < pace * min(MIN_BLOCK_SWEEPS, more)):
+                        stopped = "max_seconds"
+                    elif pace:
+                        more = max(min(more, int(left_s / pace)), min(MIN_BLOCK_SWEEPS, more))
+                if stopped:
+                    break
+                if not first_done:
+                    t_first, first_done = time.perf_counter(), n_done
                 bar.total += cfg.chains * more
                 bar.refresh()
                 tasks = _joined([next_task(tasks[c], done[c][-1], more) for c in range(cfg.chains)], moves)
@@ -602,7 +622,7 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
                                      "workers": workers},
         steps=int(sum(r["steps"] for r in merged)), scene=prepared, init=info, warmup=warmup,
         moves={"set": cfg.moves, "joint": move_names, "codes": _move_codes(independence, moves),
-               "adapted": adapted if warmup else None}, tracks=tracks)
+               "adapted": adapted if warmup else None}, tracks=tracks, stopped=stopped)
 
 
 MIN_BLOCK_SWEEPS = 10

@@ -20,7 +20,7 @@ def frozen(demo_frozen):
 
 def test_chains_do_not_depend_on_how_their_sweeps_are_cut_into_blocks(frozen):
     scene, tracks, _ = frozen
-    # an R-hat target no run reaches: 20 sweeps, then one block of 25 up to the budget of 45
+    # an R-hat target no run reaches: 20 sweeps, then blocks of 10 (runner.block_after) up to the budget of 45
     grown = infer(scene, tracks, RunConfig(chains=2, sweeps=20, seed=3, workers=1, until_rhat=1.000001,
                                            max_sweeps=45, warmup=10), progress=False)
     whole = infer(scene, tracks, RunConfig(chains=2, sweeps=45, seed=3, workers=1, warmup=10), progress=False)
@@ -29,6 +29,24 @@ def test_chains_do_not_depend_on_how_their_sweeps_are_cut_into_blocks(frozen):
     for k in grown.proposals:
         assert np.array_equal(grown.proposals[k], whole.proposals[k], equal_nan=True)
     assert not grown.diagnostics()["converged"]
+
+
+def test_a_wall_clock_budget_stops_between_blocks_says_so_and_reruns_exactly(frozen):
+    """--max-seconds: an R-hat target never reached and a sweep budget never spent; the time
+    budget stops the run between blocks, the result says why ("stopped"), and a fixed run of as
+    many sweeps is the same chains (the budget picks where to stop, not what the chains do).
+    A target met first says "converged"."""
+    scene, tracks, _ = frozen
+    cfg = dict(chains=2, sweeps=10, seed=4, workers=1, warmup=5)
+    timed = infer(scene, tracks, RunConfig(until_rhat=1.000001, max_sweeps=100_000, max_seconds=1.0, **cfg),
+                  progress=False)
+    n = timed.samples.shape[1]
+    assert timed.stopped == "max_seconds" and 10 <= n < 100_000
+    assert timed.to_json()["stopped"] == "max_seconds" and timed.to_json()["config"]["max_seconds"] == 1.0
+    fixed = infer(scene, tracks, RunConfig(**{**cfg, "sweeps": n}), progress=False)
+    assert np.array_equal(timed.samples, fixed.samples) and fixed.stopped is None
+    easy = infer(scene, tracks, RunConfig(until_rhat=10.0, min_ess=0, max_seconds=600.0, **cfg), progress=False)
+    assert easy.stopped == "converged" and easy.diagnostics()["converged"]
 
 
 def test_default_moves_bring_every_chain_off_the_at_rest_plateau(frozen):
@@ -70,7 +88,9 @@ def test_result_json_says_whether_and_why_not_converged(frozen, tmp_path):
 
 @pytest.mark.parametrize("bad", [dict(moves="fast"), dict(until_rhat=1.0), dict(until_rhat=float("nan")),
                                  dict(min_ess=-1), dict(max_sweeps=10, until_rhat=1.01), dict(warmup=99),
-                                 dict(moves="fitted", warmup=5), dict(moves="fitted", warmup=9)])
+                                 dict(moves="fitted", warmup=5), dict(moves="fitted", warmup=9),
+                                 dict(max_seconds=10.0), dict(until_rhat=1.01, max_seconds=0.0),
+                                 dict(until_rhat=1.01, max_seconds=float("inf"))])
 def test_bad_convergence_settings_are_refused(frozen, bad):
     scene, tracks, _ = frozen
     with pytest.raises(GalileoError):
