@@ -632,7 +632,12 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     protocol = registry.get(scenario).protocol
     cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
                     sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps,
-                    seed=args.seed, workers=1, moves=args.moves, priors=priors_arg(args.priors))
+                    seed=args.seed, workers=1, moves=args.moves, priors=priors_arg(args.priors),
+                    until_rhat=args.until_rhat, min_ess=args.min_ess, max_sweeps=args.max_sweeps,
+                    max_seconds=args.max_seconds)
+    for flag, given in (("--max-sweeps", args.max_sweeps), ("--max-seconds", args.max_seconds)):
+        if given is not None and args.until_rhat is None:
+            raise GalileoError(f"{flag} is a budget of --until-rhat; without it, use --sweeps")
     cfg.check()
     batch.out_folder(Path(args.out))      # before a cluster starts
     missing = batch.missing_videos(args.dataset, entries)    # refused here, in seconds, when no video can run
@@ -1013,6 +1018,12 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--moves", choices=["default", "paper", "fitted"], default="default",
                    help="move set of every video's chains (see galileo infer; paper: Galileo section 3.2 exactly)")
     e.add_argument("--priors", metavar="JSON", help="merged into every video's scene priors (see galileo infer)")
+    e.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
+                   help="run each video's chains on until converged (see galileo infer; its record says \"stopped\")")
+    e.add_argument("--min-ess", type=nonneg_float, default=400.0, help="with --until-rhat: the ESS (default 400)")
+    e.add_argument("--max-sweeps", type=sweeps_int, default=None, help="with --until-rhat: the sweep budget a video")
+    e.add_argument("--max-seconds", type=positive_float, default=None, metavar="S",
+                   help="with --until-rhat: the wall-clock budget a video (e.g. 60)")
     where = e.add_mutually_exclusive_group()
     where.add_argument("--workers", type=workers_int, default=None,
                        help="worker processes of the local Dask cluster (default: all cores)")

@@ -192,6 +192,13 @@ def test_another_config_is_run_again_not_resumed(dataset, client, tmp_path):
     assert again["run"]["resumed_videos"] == 3
     other = batch.run_experiments(dataset, RunConfig(chains=2, sweeps=5, workers=1), out, client, progress=False)
     assert other["run"]["resumed_videos"] == 0
+    # running each video until converged: an R-hat no run reaches, the sweep budget spent, said per record
+    until = batch.run_experiments(dataset, RunConfig(chains=2, sweeps=4, workers=1, until_rhat=1.000001,
+                                                     max_sweeps=14, max_seconds=600.0), out, client, progress=False)
+    assert until["run"]["resumed_videos"] == 0
+    fitted = [r for r in (json.loads(p.read_text()) for p in (out / "records").glob("*.json"))
+              if r.get("status") == "fitted"]
+    assert fitted and all(r["stopped"] == "max_sweeps" and r["sweeps"] == 14 for r in fitted)
 
 
 @pytest.mark.timeout(300)     # gives up (after batch.CONNECT_TIMEOUT_S), never hangs

@@ -112,7 +112,7 @@ def run_video(folder: Path, config: RunConfig, executor=None) -> dict:
                 "posterior_derived": {k: {q: v[q] for q in ("q05", "q25", "q50", "q75", "q95") if q in v}
                                       for k, v in derived.items()},
                 "converged": bool(diag["converged"]), "why_not": list(diag["why_not"]),
-                "r_hat": diag["r_hat"], "ess_bulk": diag["ess"], "sweeps": diag["sweeps"],
+                "r_hat": diag["r_hat"], "ess_bulk": diag["ess"], "sweeps": diag["sweeps"], "stopped": doc["stopped"],
                 "shape_found": tracks.objects[0].shape.type, "offset_found": tracks.objects[0].offset_units})
     other = partner(folder, lat)
     if other is not None:
