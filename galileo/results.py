@@ -151,9 +151,8 @@ class InferenceResult:
         """Posterior summaries of the scenario's derived quantities (e.g. the ramp's mass
         ratio, the identified quantity), one value per kept draw; a positive quantity also gets
         its log's summary (`log_<name>`)."""
-        out = derived_summaries(registry.of(self.scene), self.scene, self.names, self.kept().reshape(-1, len(self.names)))
-        gone = self.unidentified()
-        return {k: v for k, v in out.items() if k not in gone and not (k.startswith("log_") and k[4:] in gone)}
+        return identified(derived_summaries(registry.of(self.scene), self.scene, self.names,
+                                            self.kept().reshape(-1, len(self.names))), self.unidentified())
 
     def unidentified(self) -> dict[str, str]:
         """What the video(s) do not identify, with why (`Scenario.not_identified`; result.json's
@@ -324,6 +323,12 @@ def derived_summaries(scenario, scene, names: Sequence[str], rows) -> dict[str, 
         elif np.all(x > 0):
             out[f"log_{k}"] = _summary(np.log(x))
     return out
+
+
+def identified(summaries: dict[str, dict], unidentified: dict[str, str]) -> dict[str, dict]:
+    """`derived_summaries` less the quantities not identified (and their logs): no interval for them."""
+    return {k: v for k, v in summaries.items()
+            if k not in unidentified and not (k.startswith("log_") and k[4:] in unidentified)}
 
 
 def _summary(x: np.ndarray) -> dict:

@@ -69,3 +69,16 @@ def test_a_still_video_gets_no_mass_ratio_and_no_interval():
     assert {"k1", "mass_ratio", "m1_kg", "m2_kg"} <= set(doc["not_identified"])
     # the k1 the chains drew respects the bound the rule states
     assert doc["posterior"]["k1"]["q05"] >= math.tan(math.radians(scene.ramp.angle_deg)) - 1e-9
+
+
+def test_the_app_shows_no_mass_ratio_for_a_still_video():
+    from ui.controller import Controller
+
+    scene = _scene()
+    ctl = Controller(scene, held_still(scene, 30), chains=2, seed=0, workers=1, sweeps=6)
+    try:
+        ctl.run_sweeps(6)
+        derived = ctl.status()["derived"]
+        assert "mass_ratio" not in derived and "log_mass_ratio" not in derived
+    finally:
+        ctl.close()

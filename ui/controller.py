@@ -94,7 +94,7 @@ from galileo.errors import GalileoError
 from galileo.joint import tracks_from_json, tracks_to_json
 from galileo.latents import as_number, by_name, check_bounds, check_noise, check_widths
 from galileo.mcmc import chain_rng, move_code
-from galileo.results import MIN_ESS, RHAT_TARGET, burn_in, convergence, derived_summaries
+from galileo.results import MIN_ESS, RHAT_TARGET, burn_in, convergence, derived_summaries, identified
 from galileo.runner import (FITTED_MIN_WARMUP, FITTED_PER_SWEEP, MIN_BLOCK_SWEEPS, MOVE_SETS, PROPOSAL_FIELDS, ChainTask, LocalPool,
                             Problem, RunConfig, Settings, WorkerDied, WorkerHung, block_after, default_moves,
                             fitted_move, run_task, scene_for_moves)
@@ -1169,7 +1169,9 @@ class Controller:
             conv = self._convergence_of(kept, rhat_target, self._min_ess)
             conv["kept_draws"] = int(sum(len(k) for k in kept))
             conv["burn_in"] = burn_in(longest, self._warmup)
-            derived = derived_summaries(self.scenario, self.likelihood_scene, self.names, [r for k in kept for r in k])
+            derived = identified(derived_summaries(self.scenario, self.likelihood_scene, self.names,
+                                                   [r for k in kept for r in k]),
+                                 self.scenario.unidentified(self.likelihood_scene, self.tracks))
             self._conv_cache = cached = (key, conv, derived)
         out["convergence"] = copy.deepcopy(cached[1])
         out["r_hat"] = dict(cached[1]["r_hat"])
