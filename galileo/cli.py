@@ -438,8 +438,8 @@ def cmd_infer(args: argparse.Namespace) -> int:
         if not k.startswith("log_"):
             print(f"posterior {k}: {v['q50']:.3g} (90%: {v['q05']:.3g}-{v['q95']:.3g})")
     diag = doc["diagnostics"]
-    budget = {"max_seconds": f": the time budget ({cfg.max_seconds:g} s) is spent",
-              "max_sweeps": f": the sweep budget ({cfg.sweep_budget()}) is spent"}.get(doc["stopped"], "")
+    budget = (f": the time budget ({cfg.max_seconds:g} s) is spent" if doc["stopped"] == "max_seconds" else
+              f": the sweep budget ({cfg.sweep_budget()}) is spent" if doc["stopped"] == "max_sweeps" else "")
     print(f"{'converged' if diag['converged'] else 'NOT converged'} after {diag['sweeps']} sweeps{budget} "
           f"({convergence_line(diag)})")
     print(f"wrote {args.out} and {npz} ({result.timing_s['wall']:.1f} s, {result.steps} physics steps)")

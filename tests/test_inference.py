@@ -423,6 +423,16 @@ def test_cli_infer_writes_result(cli_result):
     assert "not identified: m1_kg, m2_kg: only the ratio" in stdout and "m1_kg = " not in stdout
 
 
+def test_cli_infer_until_converged_says_which_budget_stopped_it(demo_dir, tracks_file, tmp_path):
+    out = tmp_path / "r.json"
+    rc, stdout, err = run_cli("infer", demo_dir / "video.mp4", "--scene", DATA / "scene.json", "--tracks", tracks_file,
+                              "--chains", 2, "--sweeps", 4, "--until-rhat", "1.000001", "--max-sweeps", 6,
+                              "--workers", 1, "--out", out, "--quiet")
+    assert rc == 0, err
+    assert "NOT converged after 6 sweeps: the sweep budget (6) is spent" in stdout
+    assert json.loads(out.read_text())["stopped"] == "max_sweeps"
+
+
 @pytest.mark.parametrize("change, needle", [
     ({"--tracks": "missing.json"}, "tracks file not found"),
     ({"--chains": "0"}, "--chains"),
