@@ -635,6 +635,8 @@ def block_after(n_done: int, budget: int) -> int:
     a few tens of ms (R-hat and ESS over the kept draws); with blocks of half the sweeps done
     (before), the demo with the fitted move converged at sweep 160 and was told so at 225."""
     return min(max(MIN_BLOCK_SWEEPS, math.ceil(n_done * BLOCK_FRACTION)), budget - n_done)
+
+
 JOINT_LOG_SD = 0.3
 
 
