@@ -507,24 +507,26 @@ class Controller:
             return True
 
     def _maybe_fit(self) -> None:
-        """The "fitted" move set (under the lock, after a round): once every active chain is past
-        the warm-up, the independence move fitted to their warm-ups' second halves
+        """The "fitted" move set (under the lock, after a round): once every running chain is past
+        the warm-up (two at least; a chain the user paused in its warm-up is not waited for), the
+        independence move fitted to those chains' warm-ups' second halves
         (`galileo.runner.fitted_move`, as `galileo infer --moves fitted`) joins every chain's
         moves, FITTED_PER_SWEEP proposals a sweep, and every chain made later; once (recorded
         as a "fitted" event, its q in full; a reopened session has it in its chains' moves)."""
         if self.moves_set != "fitted" or self._fitted:
             return
         active = [ch for _, ch in sorted(self._chains.items()) if not ch.removed]
-        if len(active) < 2 or any(ch.sweep < self._warmup for ch in active):
+        ready = [ch for ch in active if ch.sweep >= self._warmup]
+        if len(ready) < 2 or any(ch.sweep < self._warmup and not ch.paused for ch in active):
             return
         self._fitted = True
-        q = fitted_move(self.latents, self._bounds_array(), [ch.samples.get() for ch in active], self._warmup)
+        q = fitted_move(self.latents, self._bounds_array(), [ch.samples.get() for ch in ready], self._warmup)
         if q is not None:
             more = (q,) * FITTED_PER_SWEEP
             for ch in active:
                 ch.moves = tuple(ch.moves) + more
             self._moves0 = tuple(self._moves0) + more
-        self._event("fitted", {"chains": [ch.id for ch in active], "sweep": self._warmup,
+        self._event("fitted", {"chains": [ch.id for ch in ready], "sweep": self._warmup,
                                "move": None if q is None else sess.move_to_json(q)})
 
     def _round_deadline_s(self, n_tasks: int) -> float:
