@@ -175,12 +175,15 @@ def _fit_silhouette(scene: Scene, role: str, mask: np.ndarray, kind: str, init: 
     """Least 1 - IoU between the observed silhouette and the projected 3-D shape.
 
     Unknowns: position along the support, and sizes (length, depth, height); the depth is
-    seen through perspective (the end face of an object off the camera axis).
+    seen through perspective (the end face of an object off the camera axis), so a silhouette
+    can say little of it: each size is held within the scene's prior (`priors.size_m`; a
+    shaken, blurred start's silhouette fitted a depth of 0.4 mm, which no scene holds).
     """
     cls = shape_class(kind)
+    lo, hi = scene.priors.size_m
 
     def shape_of(p):
-        length, depth, height = np.exp(p[1:4])
+        length, depth, height = np.clip(np.exp(p[1:4]), lo, hi)
         return cls.from_measured(length, depth, height)
 
     p0 = np.array([init[0], *np.log(init[1:])])
