@@ -147,12 +147,13 @@ class InferenceResult:
         return convergence(list(self.kept()), self.names, getattr(cfg, "until_rhat", None)
                            or getattr(cfg, "rhat_target", RHAT_TARGET), getattr(cfg, "min_ess", MIN_ESS))
 
-    def derived_posterior(self) -> dict[str, dict]:
+    def derived_posterior(self, gone: dict | None = None) -> dict[str, dict]:
         """Posterior summaries of the scenario's derived quantities (e.g. the ramp's mass
         ratio, the identified quantity), one value per kept draw; a positive quantity also gets
         its log's summary (`log_<name>`)."""
         return identified(derived_summaries(registry.of(self.scene), self.scene, self.names,
-                                            self.kept().reshape(-1, len(self.names))), self.unidentified())
+                                            self.kept().reshape(-1, len(self.names))),
+                          self.unidentified() if gone is None else gone)
 
     def unidentified(self) -> dict[str, str]:
         """What the video(s) do not identify, with why (`Scenario.not_identified`; result.json's
@@ -199,19 +200,20 @@ class InferenceResult:
                 "burn_in_sweeps": burn_in(self.samples.shape[1], self.warmup), "warmup_sweeps": int(self.warmup),
                 "sweeps": int(self.samples.shape[1]), "per_chain": self.per_chain()}
 
-    def derived(self) -> dict:
-        """The scenario's derived quantities at the MAP (None for one not identified)."""
-        gone = self.unidentified()
+    def derived(self, gone: dict | None = None) -> dict:
+        """The scenario's derived quantities at the MAP (None for one not identified; `gone`:
+        `unidentified()`, if the caller has it)."""
+        gone = self.unidentified() if gone is None else gone
         return {k: None if k in gone else v for k, v in registry.of(self.scene).derived(self.scene, self.map).items()}
 
-    def at_prior_edge(self) -> list[str]:
+    def at_prior_edge(self, gone: dict | None = None) -> list[str]:
         """The latents whose MAP lies within EDGE_FRACTION of its prior's width from a bound that
         is not the latent's own limit: the data pull past what the prior allows (a prior too
         narrow, or the model missing something that the latent bends to absorb); such a MAP is
         not an estimate of that latent. A latent the video does not identify (`unidentified`) is
         not said: its posterior is its prior's."""
         specs = getattr(self.scene, "latent_specs", None)
-        gone = self.unidentified()
+        gone = self.unidentified() if gone is None else gone
         limits = {lat.name: lat.limits for lat in specs()} if specs is not None else {}
         out = []
         for n, v in self.map.items():
@@ -241,13 +243,14 @@ class InferenceResult:
                   "max_sweeps": cfg.sweep_budget() if getattr(cfg, "until_rhat", None) else None,
                   "max_seconds": getattr(cfg, "max_seconds", None)}
         diag = self.diagnostics()
-        return {"scenario": self.scenario, "map": self.map, "map_loglik": self.map_loglik, **self.derived(),
+        gone = self.unidentified()   # (once: the derived values, the prior-edge check and the summaries use it)
+        return {"scenario": self.scenario, "map": self.map, "map_loglik": self.map_loglik, **self.derived(gone),
                 "converged": diag["converged"], "why_not": diag["why_not"], "stopped": self.stopped,
                 "notes": list(self.notes),
-                "map_at_prior_edge": self.at_prior_edge(),
+                "map_at_prior_edge": self.at_prior_edge(gone),
                 "init": self.init or {"starts": "prior"},
-                "not_identified": self.unidentified(),
-                "posterior": self.posterior(), "posterior_derived": self.derived_posterior(),
+                "not_identified": gone,
+                "posterior": self.posterior(), "posterior_derived": self.derived_posterior(gone),
                 "diagnostics": diag, "timing_s": self.timing_s,
                 "config": config, "latents": list(self.names), "scene": self.scene.to_json(), "samples_file": None}
 

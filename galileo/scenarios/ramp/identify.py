@@ -4,7 +4,7 @@ Newton on the ramp: an object sliding with friction k accelerates at g (sin thet
 whatever its mass, so a video identifies the ramp object's friction k1 and never its mass m1.
 A collision conserves momentum, m1 v1 = m1 v1' + m2 v2' (with restitution e fixing the
 velocities' split), so it fixes the ratio m1 / m2 and never the two masses: both scaled together
-make the same video. A video in which nothing moves (`nothing_moves`) says only that the ramp
+make the same video. A video in which nothing moves (`moves`: the tracker held it still) says only that the ramp
 object's friction holds it, k1 >= tan theta; there is no collision to weigh the objects by, and
 a target that never moves shows nothing of its friction. A mass fixed by the problem (`--fix
 m2_kg=...`) turns the ratio into the other mass.
@@ -28,11 +28,6 @@ def moves(tracks: Tracks, role: str) -> bool:
         return False
     pos = np.asarray(o.position_m, float)[np.asarray(o.visible, bool)]
     return bool(len(pos) and np.ptp(pos, axis=0).max() > 0)
-
-
-def nothing_moves(tracks: Tracks) -> bool:
-    """Whether no object of the tracks moves (`moves`): the tracker's verdict on a still video."""
-    return not any(moves(tracks, o.role) for o in tracks.objects)
 
 
 def not_identified(scenes: Sequence[Scene], fixed: dict[str, float],
