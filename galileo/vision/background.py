@@ -169,6 +169,23 @@ def _components(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return labels, stats[:, cv2.CC_STAT_AREA]
 
 
+def mostly_within(mask: np.ndarray, region: np.ndarray, share: float, join_px: int) -> np.ndarray:
+    """The parts of a mask (its pieces within `join_px` pixels of one another taken together: a
+    compressed shadow breaks into many) of which at least `share` of the area lies in `region`."""
+    labels, _ = _components(dilate(mask, 2 * join_px + 1))
+    lab = labels[mask]
+    n = int(labels.max()) + 1
+    keep = np.bincount(lab[region[mask]], minlength=n) >= share * np.maximum(np.bincount(lab, minlength=n), 1)
+    keep[0] = False
+    return mask & keep[labels]
+
+
+def largest_area(mask: np.ndarray) -> int:
+    """The area (pixels) of the mask's largest 8-connected component (0 for an empty mask)."""
+    _, area = _components(mask)
+    return int(area[1:].max()) if len(area) > 1 else 0
+
+
 def largest_component(mask: np.ndarray) -> np.ndarray | None:
     """The largest component as a filled convex silhouette; None if smaller than MIN_BLOB_PX."""
     labels, area = _components(mask)

@@ -51,7 +51,11 @@ largest size above them) bounds what counts as motion: something that moves else
 person walking by, a shadow on the wall, a hand at the frame's edge) is left out, with a
 note (`DISTRACTOR_NOTE`); a video is still when nothing differs between its start and end
 where the objects start (`_start_band`, the target's place) and nothing in that region
-differs at its end from its start.
+differs at its end from its start (in a piece at least STILL_MIN_SHARE of the smaller object's
+silhouette: a shaken frame's edges leave slivers). Frame 0 differs from the end only where it differs from the
+scene as it ends and from each of its last END_AGREE_FRAMES frames: a shadow that passes a still
+object while the end is learned leaves its ghost in the end's model, but not in every one of
+those frames, while an object that has left its start is gone from all of them.
 
 The video is streamed (`galileo.video.VideoStream`): one pass learns the background models,
 a second tracks, holding the frame before; memory does not grow with the video's length.
@@ -83,9 +87,10 @@ from ...errors import GalileoError
 from ...shapes import SHAPE_TYPES, Shape, shape_class
 from ...video import VideoStream, yuv_to_rgb
 from ...vision import shapenet
-from ...vision.background import (MODEL_MAX_FRAMES, MOG_SCALE, blobs, clean, dilate, erode, foreground, frames_at,
-                                  full_res, largest_component, mask_at, mog2, mog2_background, noise_sd, not_the_scene,
-                                  resize_to, scaled, spread, touching, work_scale, yuv_image)
+from ...vision.background import (MIN_BLOB_PX, MODEL_MAX_FRAMES, MOG_SCALE, blobs, clean, dilate, erode, foreground,
+                                  frames_at, full_res, largest_area, largest_component, mask_at, mog2, mog2_background,
+                                  mostly_within, noise_sd, not_the_scene, resize_to, scaled, spread, touching, work_scale,
+                                  yuv_image)
 from ...vision.draw import draw_tracks
 from ...vision.klt import flow
 from ...vision.pose import rot_y
@@ -97,6 +102,10 @@ from .scene import Scene
 
 END_MODEL_MIN_FRAMES = 10  # the end's background model: the last third of the video, at least this many frames
 END_MODEL_PART = 3
+END_AGREE_FRAMES = 3       # a still video: frame 0 differs from the end where it differs from each of these last frames,
+STILL_MIN_SHARE = 0.2      # ... and moves when the largest piece of that difference at the objects' starts is at least
+                           # this share of the smaller object's silhouette as the scene file puts it (an object that has
+                           # left uncovers most of its own; a shaken frame's edges leave slivers)
 START_MODEL_SCALE = 0.5    # the start's background model runs at this scale of MOG_SCALE (quarter resolution)
 NEAR_MODEL_PX = 1          # full-resolution frame-0 foreground: within this many pixels of the models' (a square of
 # 2 x 1 / scale + 1 px: 5 at half resolution, 9 at a 4K video's quarter)
@@ -104,6 +113,9 @@ BAND_FLOOR_M = 0.002       # the band of start positions begins this far above t
 MIN_AREA_FRACTION = 0.25   # detection: components smaller than this fraction of the largest are noise
 CONTACT_M = 0.02           # detection: the ramp object at its start reaches the strip this high above the ramp ...
 CONTACT_PX = 6             # ... to within this many pixels (a scene from clicks is a few pixels off)
+ON_RAMP_SHARE = 0.5        # ... and is preferred among frame 0's differences that lie at least this much (by area,
+ON_RAMP_JOIN_PX = 5        # pieces within this many pixels taken as one) on the ramp, up to the largest size the prior
+                           # allows above it
 MIN_INIT_M = 0.005         # silhouette fit: sizes start at least this large
 MIN_HEIGHT_M = 1e-3        # measured height floored at this
 FIT_PAD_PX = 30            # silhouette fit: margin around the observed silhouette
@@ -296,12 +308,34 @@ def _detect_start(scene: Scene, fg0: np.ndarray) -> dict[str, tuple[np.ndarray, 
     that stops against it).
     """
     found: dict[str, tuple[np.ndarray, str]] = {}
-    blob = _uphill_component(scene, fg0 & _start_band(scene), _start_band(scene, CONTACT_M))
+    band, contact = _start_band(scene), _start_band(scene, CONTACT_M)
+    blob = _uphill_component(scene, _mostly_on_ramp(scene, fg0) & band, contact)
+    if blob is None:   # (nothing that lies on the ramp: what reaches into the band, as before)
+        blob = _uphill_component(scene, fg0 & band, contact)
     found["ramp"] = (blob, "motion") if blob is not None else (_scene_mask(scene, 0), "scene")
     if scene.target is not None:
         # the scene file states the target's kind, size and place: take them
         found["target"] = (_target_start(scene), "scene")
     return found
+
+
+def _mostly_on_ramp(scene: Scene, fg0: np.ndarray) -> np.ndarray:
+    """The parts of frame 0's foreground of which at least ON_RAMP_SHARE lies on the ramp, up to the
+    largest size the prior allows above it (`mostly_within`). An object resting there lies there
+    whole; the shadow of a person walking by the ramp's top reaches into the band of start
+    positions with a small part of itself."""
+    on_ramp = _ramp_band_mask(scene, 0.0, scene.ramp.length_m, scene.priors.size_m[1])
+    return mostly_within(fg0, on_ramp, ON_RAMP_SHARE, ON_RAMP_JOIN_PX)
+
+
+def _nothing_leaves(scene: Scene, differs: np.ndarray) -> bool:
+    """Whether nothing left the objects' starts, given where the video's start and end differ
+    (full resolution): objects that move leave where they start (what moves elsewhere is no object
+    of the scene), uncovering most of their silhouettes; no piece of the difference there is as
+    large as STILL_MIN_SHARE of the smaller object's silhouette (as the scene file puts it)."""
+    leaving = dilate(_start_band(scene) | _target_start(scene), REACQUIRE_PX)
+    smallest = min(np.count_nonzero(_scene_mask(scene, i)) for i in range(len(scene.objects)))
+    return largest_area(differs & leaving) < max(STILL_MIN_SHARE * smallest, MIN_BLOB_PX)
 
 
 def _target_start(scene: Scene) -> np.ndarray:
@@ -435,6 +469,7 @@ class _SceneModels:
     small0: np.ndarray      # frame 0 at the models' scale (Y, U, V)
     noise: float            # sensor noise (levels), from frames 0 and 1
     bg_end: np.ndarray      # the scene as it ends (the models' scale)
+    last: list[np.ndarray]  # the last END_AGREE_FRAMES frames the end is learned from (the models' scale)
     fg_last: np.ndarray     # the last frame against the scene as it starts (a mask, quarter of the models' scale;
                             # what a pixel's shift would explain left out: `foreground`'s shift_px)
     shown: np.ndarray       # (n,) whether each frame shows the scene (`not_the_scene`)
@@ -481,7 +516,7 @@ def _learn_scene(video: Stabilised, n: int, scale: float, bar) -> _SceneModels:
         ends = frames_at(video, _end_part(np.flatnonzero(shown)), scale)
     bg_end = mog2_background(ends, reverse=True)
     fg_last = foreground(tiny, start_model.getBackgroundImage(), noise, shift_px=1)
-    return _SceneModels(*first, noise, bg_end, fg_last, shown)
+    return _SceneModels(*first, noise, bg_end, ends[-END_AGREE_FRAMES:], fg_last, shown)
 
 
 def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
@@ -508,16 +543,17 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
     notes = [note for note in (video.timing_note(),) if note] + video.notes()
     noise, bg_end, small0 = models.noise, models.bg_end, models.small0
     fg0_small = full_res(foreground(small0, bg_end, noise), full_hw)
+    # (where it also differs from each of the last frames: a passing shadow's ghost in the end's model is not in all)
+    fg0_end = fg0_small.copy()
+    for frame in models.last:
+        fg0_end &= full_res(foreground(small0, frame, noise), full_hw)
     # (the last frame against the start: less what a pixel's misregistration explains, since a stabilised
     # shaking camera leaves edges a fraction of a pixel off, and a still video read as moving on them)
     fg_last = full_res(models.fg_last, full_hw)
-    moved = fg0_small | fg_last
     region = object_region(scene)
-    if largest_component(moved & ~region) is not None:
+    if largest_component((fg0_small | fg_last) & ~region) is not None:
         notes.append(DISTRACTOR_NOTE)
-    # objects that move leave where they start; what moves elsewhere is no object of the scene
-    leaving = dilate(_start_band(scene) | _target_start(scene), REACQUIRE_PX)
-    if largest_component(moved & leaving) is None:
+    if _nothing_leaves(scene, fg0_end | fg_last):
         bar.close()   # nothing moves: evidence in itself (the ramp object holds on the ramp)
         tracks = held_still(scene, n, models.shown)
         tracks.notes.extend(notes + rarely_seen_notes(tracks.objects))
