@@ -348,10 +348,9 @@ def fixed_arg(items: list[str] | None) -> dict[str, float]:
 
 
 def cmd_infer(args: argparse.Namespace) -> int:
-    from . import registry
+    from . import api, registry
     from .datatypes import Tracks
     from .results import warning_of
-    from .runner import RunConfig, infer
 
     videos = list(args.video)
     if any(Path(v).is_dir() for v in videos):
@@ -377,53 +376,31 @@ def cmd_infer(args: argparse.Namespace) -> int:
         raise GalileoError("--scheduler, --slurm and --granularity are for a folder of videos")
     if args.share and len(videos) == 1:
         raise GalileoError("--share is for several videos (one value of a latent for all of them)")
-    scenes = [registry.load_scene(p) for p in args.scene]
-    scene = registry.problem(scenes, args.share or (), fixed_arg(args.fix))
-    registry.of(scene).latents(scene)    # a bad --share or --fix fails here, before tracking
-    several = len(videos) > 1
-    if several and args.init == "recognition":
-        raise GalileoError("--init recognition reads one video: for several, chains start from the prior")
-    scenario = registry.of(scene)
-    protocol = scenario.protocol
-    cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
-                    sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps, seed=args.seed,
-                    workers=args.workers, noise=args.sigma, speedups=not args.no_speedups, narrow=args.narrow,
-                    broad=args.broad, broad_every=args.broad_every, moves=args.moves, warmup=args.warmup,
-                    until_rhat=args.until_rhat, min_ess=args.min_ess, max_sweeps=args.max_sweeps,
-                    max_seconds=args.max_seconds, priors=priors_arg(args.priors))
     if args.max_sweeps is not None and args.until_rhat is None:
         raise GalileoError("--max-sweeps is the budget of --until-rhat; without it, use --sweeps")
     if args.max_seconds is not None and args.until_rhat is None:
         raise GalileoError("--max-seconds is a budget of --until-rhat; without it, use --sweeps")
-    cfg.check()
-    checked_settings(cfg, scenario, scene)
     if args.recognition_move is not None and args.recognition_move < 1:
         raise GalileoError("--recognition-move must be at least 1 (every how many sweeps)")
     if args.recognition_move and args.init != "recognition":
         raise GalileoError("--recognition-move needs --init recognition (the move draws from the recognition model)")
-    model = None
-    if args.init == "recognition":
-        from .recognition.model import load_model
-
-        model = load_model(args.model, scenario.name)   # before tracking: a bad model file fails fast
-    elif args.model:
+    if args.model and args.init != "recognition":
         raise GalileoError("--model is for --init recognition")
-    tracks = []
-    for v, (video, s) in enumerate(zip(videos, scenes)):
-        if args.tracks:
-            tracks.append(Tracks.load(args.tracks[v]))
-        else:
-            tracks.append(registry.of(s).track(video, s, progress=not args.quiet))
-    init = None
-    if model is not None:
-        from .recognition.model import recognition_init
-
-        init = recognition_init(model, videos[0], scene, tracks[0], args.recognition_move or 0,
-                                source=str(args.model or "built-in"))
-    result = infer(scene, tracks if several else tracks[0], cfg, progress=not args.quiet, init=init)
-    result.notes = tuple(f"video {v + 1}: {n}" if several else n
-                         for v, t in enumerate(tracks) for n in (getattr(t, "notes", ()) or ()))
-    doc = result.to_json()   # diagnostics and derived posteriors, computed once
+    if len(videos) > 1 and args.init == "recognition":
+        raise GalileoError("--init recognition reads one video: for several, chains start from the prior")
+    several = len(videos) > 1
+    scenes = [registry.load_scene(p) for p in args.scene]
+    observed = [Tracks.load(t) for t in args.tracks] if args.tracks else videos
+    done = api.infer(scenes if several else scenes[0], observed if several else observed[0], share=args.share or (),
+                     fix=fixed_arg(args.fix), chains=args.chains, sweeps=args.sweeps, seed=args.seed,
+                     workers=args.workers, sigma=args.sigma, moves=args.moves, warmup=args.warmup,
+                     until_rhat=args.until_rhat, min_ess=args.min_ess, max_sweeps=args.max_sweeps,
+                     max_seconds=args.max_seconds, priors=priors_arg(args.priors), init=args.init, model=args.model,
+                     recognition_move=args.recognition_move, narrow=args.narrow, broad=args.broad,
+                     broad_every=args.broad_every, speedups=not args.no_speedups, progress=not args.quiet)
+    result, cfg = done.inference, done.inference.config
+    scenario = registry.of(result.scene)
+    doc = done.doc   # diagnostics and derived posteriors, computed once
     npz = result.save(args.out, doc)
     for note in result.notes:
         print(f"note: {note}")
@@ -623,22 +600,17 @@ def cmd_predict(args: argparse.Namespace) -> int:
 def cmd_experiment(args: argparse.Namespace) -> int:
     import json
 
-    from . import batch, registry
-    from .runner import RunConfig
+    from . import api, batch, registry
 
     scenario, entries = batch.dataset_index(args.dataset)
     if registry.get(scenario).experiments is None:
         raise GalileoError(f"{Path(args.dataset) / 'index.json'}: no experiments for scenario {scenario!r}")
-    protocol = registry.get(scenario).protocol
-    cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
-                    sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps,
-                    seed=args.seed, workers=1, moves=args.moves, priors=priors_arg(args.priors),
-                    until_rhat=args.until_rhat, min_ess=args.min_ess, max_sweeps=args.max_sweeps,
-                    max_seconds=args.max_seconds)
     for flag, given in (("--max-sweeps", args.max_sweeps), ("--max-seconds", args.max_seconds)):
         if given is not None and args.until_rhat is None:
             raise GalileoError(f"{flag} is a budget of --until-rhat; without it, use --sweeps")
-    cfg.check()
+    cfg = api.run_config(registry.get(scenario), chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=1,
+                         moves=args.moves, priors=priors_arg(args.priors), until_rhat=args.until_rhat,
+                         min_ess=args.min_ess, max_sweeps=args.max_sweeps, max_seconds=args.max_seconds)
     batch.out_folder(Path(args.out))      # before a cluster starts
     missing = batch.missing_videos(args.dataset, entries)    # refused here, in seconds, when no video can run
     if missing:

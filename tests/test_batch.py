@@ -363,3 +363,15 @@ def test_videos_lacking_files_are_recorded_failed_without_running_and_the_rest_r
         assert "worker" not in recs[name]                   # never sent to a worker
     report = json.loads((out / "report.json").read_text())
     assert sorted(report["run"]["failed_videos"]) == ["a", "c"] and report["summary"]["fitted"] == 1
+
+
+def test_the_api_experiment_on_a_client_passed_in_is_the_batch_run(dataset, client, tmp_path):
+    """galileo.experiment(dataset, out, client=...) runs the same work as `galileo experiment` (its
+    defaults, the scenario's protocol where not given): the same report."""
+    import galileo
+
+    report = batch.run_experiments(dataset, CFG, tmp_path / "batch", client, progress=False)
+    mine = galileo.experiment(dataset, tmp_path / "api", client=client, chains=2, sweeps=4, progress=False)
+    assert timeless(mine) == timeless(report)
+    with pytest.raises(galileo.GalileoError, match="max_seconds is a budget of until_rhat"):
+        galileo.experiment(dataset, tmp_path / "x", client=client, max_seconds=3)
