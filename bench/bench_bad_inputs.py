@@ -221,7 +221,7 @@ def cases(w: Path, a: dict) -> list[Case]:
     add("control", "track the tiny video", ["track", V, "--scene", TS, "--quiet", "--out", "{O}/t.json"], expect="accept",
         outputs=["{O}/t.json"])
     add("control", "infer on frozen tracks", infer, expect="accept", outputs=["{O}/r.json"])
-    add("control", "predict", ["predict", "--result", R, "--angle-deg", "30", "--target", "--out", "{O}/p.json"],
+    add("control", "predict", ["predict", "--result", R, "--angle-deg", "30", "--target-outcome", "--out", "{O}/p.json"],
         expect="accept", outputs=["{O}/p.json"])
     add("control", "app reopens the session", ["--session", "{W}/session"], prog="app", expect="accept")
 
@@ -276,7 +276,7 @@ def cases(w: Path, a: dict) -> list[Case]:
     for flag, v in (("--angle-deg", "nan"), ("--angle-deg", "95"), ("--angle-deg", "-1"), ("--angle-deg", "inf")):
         add("flags:predict", f"{flag} {v}", ["predict", "--result", R, flag, v])
     add("flags:predict", "no question", ["predict", "--result", R])
-    add("flags:predict", "missing result", ["predict", "--result", "{W}/none.json", "--target"])
+    add("flags:predict", "missing result", ["predict", "--result", "{W}/none.json", "--target-outcome"])
     add("flags:predict", "--scene bad file", ["predict", "--result", R, "--scene", "{W}/afile.txt"])
     ex = ["experiment", "{W}/dataset", "--out", "{O}/x", "--quiet"]
     for flag, v in (("--chains", "0"), ("--sweeps", "0"), ("--seed", "-1"), ("--workers", "0"), ("--moves", "x"),
@@ -324,7 +324,7 @@ def cases(w: Path, a: dict) -> list[Case]:
         add("out", f"track --out {name}", ["track", V, "--scene", TS, "--quiet", "--out", o])
         add("out", f"track --debug-video {name}", ["track", V, "--scene", TS, "--quiet", "--out", "{O}/t.json",
                                                    "--debug-video", o])
-        add("out", f"predict --out {name}", ["predict", "--result", R, "--target", "--out", o])
+        add("out", f"predict --out {name}", ["predict", "--result", R, "--target-outcome", "--out", o])
     for name, o in (("an existing file", "{W}/afile.txt"), ("empty", ""), ("unwritable", "/proc/none/d")):
         add("out", f"dataset --out {name}", ["dataset", "--out", o, "--quiet"])
         add("out", f"experiment --out {name}", ["experiment", "{W}/dataset", "--out", o, "--quiet"])
@@ -339,7 +339,7 @@ def cases(w: Path, a: dict) -> list[Case]:
     add("out", "track --out its own --scene", ["track", V, "--scene", "{O}/scene.json", "--quiet", "--out",
                                                "{O}/scene.json"], outputs=[])
     add("out", "infer --out its own --tracks", infer[:-1] + ["{W}/tracks.json"])
-    add("out", "predict --out its own --result", ["predict", "--result", "{O}/result.json", "--target", "--out",
+    add("out", "predict --out its own --result", ["predict", "--result", "{O}/result.json", "--target-outcome", "--out",
                                                    "{O}/result.json"])
 
     # -- scene files (loaded by simulate; the same loader serves track, infer, the app) --
@@ -477,14 +477,14 @@ def cases(w: Path, a: dict) -> list[Case]:
         p = write(w, f"result/{name}/result.json", doc)
         src = w / "result.samples.npz"
         (Path(p).parent / "result.samples.npz").write_bytes(src.read_bytes())
-        add("result", name, ["predict", "--result", p, "--angle-deg", "30", "--target"])
+        add("result", name, ["predict", "--result", p, "--angle-deg", "30", "--target-outcome"])
     p = write(w, "result/truncated npz/result.json", res)
     (Path(p).parent / "result.samples.npz").write_bytes((w / "result.samples.npz").read_bytes()[:100])
-    add("result", "truncated samples npz", ["predict", "--result", p, "--angle-deg", "30", "--target"])
+    add("result", "truncated samples npz", ["predict", "--result", p, "--angle-deg", "30", "--target-outcome"])
     p = write(w, "result/npz is text/result.json", res)
     (Path(p).parent / "result.samples.npz").write_text("not an npz")
-    add("result", "samples npz is text", ["predict", "--result", p, "--angle-deg", "30", "--target"])
-    add("result", "nested 100000 deep", ["predict", "--result", "{W}/deep.json", "--target"])
+    add("result", "samples npz is text", ["predict", "--result", p, "--angle-deg", "30", "--target-outcome"])
+    add("result", "nested 100000 deep", ["predict", "--result", "{W}/deep.json", "--target-outcome"])
 
     # -- dataset index (experiment) --
     for name, text in (("not JSON", "{"), ("a list", "[]"), ("videos missing", '{"preset": "demo"}'),

@@ -544,22 +544,67 @@ def on_first_parse(parser, add) -> None:
     parser.parse_known_args = parse_known_args
 
 
+# A question's flag where its own spelling (`Question.flag`, `--<name>`) would say something else
+# than the same flag of another command: the ramp's yes/no question `target` reads
+# `--target-outcome`, since `galileo scene --target` takes a kind of target box
+# (none|cardboard|foam). The old spelling still works, with a deprecation warning.
+QUESTION_FLAGS = {"target": "--target-outcome"}
+
+
+def question_flag(q) -> str:
+    """The flag `galileo predict` asks question `q` by."""
+    return QUESTION_FLAGS.get(q.name, q.flag)
+
+
+DEPRECATED = "deprecated_flags"   # the namespace attribute the old spellings used are noted in
+
+
+class DeprecatedFlag(argparse.Action):
+    """An old spelling of a flag, hidden from --help: it sets what the new one sets (`nargs=0`:
+    the constant, a switch's True) and notes itself in the namespace's DEPRECATED dict ({dest:
+    (old spelling, new)}), which `main` prints as a warning line each once the command has run
+    (a refused command prints its one error line only)."""
+
+    def __init__(self, option_strings, dest, new_flag: str, nargs=None, const=None, **kw):
+        super().__init__(option_strings, dest, nargs=nargs, const=const, **kw)
+        self.new_flag = new_flag
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        noted = dict(getattr(namespace, DEPRECATED, None) or {})
+        noted[self.dest] = (option_string, self.new_flag)
+        setattr(namespace, DEPRECATED, noted)
+        setattr(namespace, self.dest, self.const if self.nargs == 0 else values)
+
+
+def typed_flag(args: argparse.Namespace, q) -> str:
+    """The spelling of question `q`'s flag the user typed (the old one where it was that)."""
+    old = (getattr(args, DEPRECATED, None) or {}).get(q.name)
+    return old[0] if old else question_flag(q)
+
+
 def add_questions(parser) -> None:
-    """The scenarios' questions (`Scenario.questions`) as `parser`'s flags, a group per scenario."""
+    """The scenarios' questions (`Scenario.questions`) as `parser`'s flags, a group per scenario
+    (a renamed one's old spelling, QUESTION_FLAGS, hidden and deprecated)."""
     from . import registry
 
     for name in registry.names():
-        qs = [q for q in registry.get(name).questions if q.flag not in parser._option_string_actions]
+        qs = [q for q in registry.get(name).questions if question_flag(q) not in parser._option_string_actions]
         if not qs:
             continue
-        group = parser.add_argument_group(f"questions of a {name} result")
+        group = parser.add_argument_group(f"questions of a {name} result (each asked only if given)")
         for q in qs:
+            flag, text = question_flag(q), q.help.replace("%", "%%")
             if q.kind == "yes":
-                group.add_argument(q.flag, action="store_true", help=q.help)
+                group.add_argument(flag, dest=q.name, action="store_true", help=text)
             elif q.kind == "number":
-                group.add_argument(q.flag, type=finite_float, help=q.help)
+                group.add_argument(flag, dest=q.name, type=finite_float, help=text)
             else:
-                group.add_argument(q.flag, help=q.help)
+                group.add_argument(flag, dest=q.name, metavar="FILE", help=text)
+            if flag != q.flag and q.flag not in parser._option_string_actions:
+                group.add_argument(q.flag, dest=q.name, action=DeprecatedFlag, new_flag=flag,
+                                   default=argparse.SUPPRESS, help=argparse.SUPPRESS,
+                                   **({"nargs": 0, "const": True} if q.kind == "yes" else
+                                      {"type": finite_float} if q.kind == "number" else {}))
 
 
 def cmd_predict(args: argparse.Namespace) -> int:
@@ -574,7 +619,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
              if getattr(args, q.name, None) not in (None, False)}
     for q, value in asked.values():   # numbers against their bounds, before the result is read
         if q.kind == "number" and q.bound is not None and not q.bound.contains(value):
-            raise GalileoError(f"{q.flag} must be in {q.bound}, got {value:g}")
+            raise GalileoError(f"{typed_flag(args, q)} must be in {q.bound}, got {value:g}")
     d = read_result_json(args.result)       # a dict with a known scenario, or a one-line error
     scenario = registry.get(d.get("scenario", registry.DEFAULT))
     if is_joint_json(d.get("scene")):
@@ -583,9 +628,13 @@ def cmd_predict(args: argparse.Namespace) -> int:
     own = {q.name for q in scenario.questions}
     for name, (q, _) in asked.items():
         if name not in own:
-            raise GalileoError(f"{q.flag} is no question of the {scenario.name} scenario"
-                               + (f"; it answers {', '.join(x.flag for x in scenario.questions)}" if own else
-                                  "; it answers none"))
+            raise GalileoError(f"{typed_flag(args, q)} is no question of the {scenario.name} scenario"
+                               + (f"; it answers {', '.join(question_flag(x) for x in scenario.questions)}" if own
+                                  else "; it answers none"))
+    if own and not asked:
+        flags = ", ".join(question_flag(x) for x in scenario.questions)
+        raise GalileoError(f"nothing to predict: ask at least one of {flags} (`galileo predict --help` says what each "
+                           "asks)")
     out = scenario.predict(args.result, {q.name: getattr(args, q.name, None) for q in scenario.questions})
     text = json.dumps(out, indent=1)
     if args.out:
@@ -859,49 +908,103 @@ def scenario_name(text: str) -> str:
     return text
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from . import registry
+SIGMA_HELP = ("the likelihood's noise SD, in the scenario's unit: ramp: m/s, default: 0.05 (each tracked velocity "
+              "component); splash: px, default: 1 (tracked positions; px/frame for velocities); spring: px, default: "
+              "0.5; fall: px, default: 1 (`galileo scenarios` lists each scenario's noise)")
+MOVES_HELP = ("default: widths adapted in a warm-up plus the scenario's exact joint moves (ramp: k1 from the tracked "
+              "acceleration, mass-ratio moves); paper: Galileo section 3.2 exactly; fitted: default plus, after the "
+              "warm-up, an exact independence move fitted to every chain's warm-up draws (chains that a jagged "
+              "likelihood holds apart meet; needs --warmup >= 10) (default: default)")
+SEED_HELP = "random seed of the {what}, 0 to 2^32-1 (default: 0)"
 
+
+def overview(parser: argparse.ArgumentParser) -> str:
+    """`galileo` alone (and `galileo recognize` alone): the commands, each with its one-line help,
+    and where to read more."""
+    import shutil
+    import textwrap
+
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    rows = [(a.dest, (a.help or "").replace("%%", "%")) for a in sub._choices_actions]
+    width = max(len(name) for name, _ in rows) + 4
+    columns = max(60, min(100, shutil.get_terminal_size().columns - 2))
+    lines = [f"usage: {parser.prog} {sub.metavar} [FLAGS]", "", *textwrap.wrap(parser.description or "", columns),
+             "", f"{'commands' if sub.metavar == 'COMMAND' else 'steps'}:"]
+    for name, text in rows:
+        lines += textwrap.wrap(text, columns, initial_indent=f"  {name:<{width - 2}}",
+                               subsequent_indent=" " * width) or [f"  {name}"]
+    lines += ["", f"`{parser.prog} {sub.metavar} --help`: its flags, each with its unit and default."]
+    if parser.prog == "galileo":
+        lines += ["`galileo --version`: the version."]
+    return "\n".join(lines)
+
+
+def printing_overview(parser: argparse.ArgumentParser):
+    """A command function that prints `parser`'s overview (its subcommand not given)."""
+    def show(args: argparse.Namespace) -> int:
+        print(overview(parser))
+        return 0
+    return show
+
+
+def build_parser(lazy: bool = True) -> argparse.ArgumentParser:
+    """The `galileo` parser. Every flag says its unit (in its name, e.g. --duration-s, or its help)
+    and its default (`(default: X)`); tests/test_cli_vocabulary.py holds every flag to it.
+    `lazy`: the scenarios' own flags (predict's questions, scene's numbers) are added when their
+    command first parses (importing the scenarios takes a second); False adds them now."""
+    from . import __version__, registry
+
+    defer = on_first_parse if lazy else (lambda parser, add: add(parser))
     p = Parser(prog="galileo", description="Physical object properties from video: "
                                 "Bullet simulations inside MCMC (Galileo, NIPS 2015).")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    p.add_argument("--version", action="version", version=f"galileo {__version__}",
+                   help="print the version and exit")
+    p.set_defaults(func=printing_overview(p))
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
-    s = sub.add_parser("simulate", help="simulate a scene and write its trajectory JSON")
-    s.add_argument("--scene", help="scene JSON (omit for the default scene of --scenario)")
+    s = sub.add_parser("simulate", help="simulate a scene and write its trajectory JSON",
+                       description="Simulate a scene (a scene file, or a scenario's default scene) and write its "
+                                   "trajectory JSON; --set changes any latent or knob, in its unit.")
+    s.add_argument("--scene", metavar="FILE", help="scene JSON (default: the default scene of --scenario)")
     s.add_argument("--scenario", type=scenario_name, metavar="NAME",
-                   help=f"without --scene: this scenario's default scene (default {registry.DEFAULT})")
+                   help=f"without --scene: this scenario's default scene (default: {registry.DEFAULT})")
     s.add_argument("--set", action="append", metavar="NAME=VALUE",
-                   help="override a latent or another value of the scene (repeatable; `galileo scenarios` "
-                        "lists each scenario's latents)")
-    s.add_argument("--duration-s", type=positive_float,
-                   help="simulated time (default: the scene's video length, else 2 s)")
-    s.add_argument("--frames", type=frames_int, help=f"number of frames instead of --duration-s (at most {MAX_FRAMES})")
-    s.add_argument("--fps", type=fps_float, help=f"output frame rate (default: the scene's video's, else 30; at most "
-                   f"{MAX_FPS:g})")
-    s.add_argument("--out", required=True, type=out_file, help="trajectory JSON to write")
+                   help="set a latent or another value of the scene, in its unit as named (m1_kg in kg, angle_deg in "
+                        "degrees, k1 unitless; repeatable; `galileo scenarios` lists each scenario's latents and "
+                        "units) (default: the scene's values)")
+    s.add_argument("--duration-s", type=positive_float, metavar="S",
+                   help="simulated time in seconds (default: the scene's video length, else 2)")
+    s.add_argument("--frames", type=frames_int, metavar="N",
+                   help=f"number of frames instead of --duration-s, at most {MAX_FRAMES} (default: from --duration-s)")
+    s.add_argument("--fps", type=fps_float, metavar="F", help=f"output frame rate in frames per second, at most "
+                   f"{MAX_FPS:g} (default: the scene's video's, else 30)")
+    s.add_argument("--out", required=True, type=out_file, metavar="FILE", help="trajectory JSON to write")
     s.set_defaults(func=cmd_simulate)
 
     d = sub.add_parser("dataset", help="render Physics-101-style videos with ground truth")
     d.add_argument("--scenario", type=scenario_name, default=registry.DEFAULT, metavar="NAME",
-                   help=f"whose videos (default {registry.DEFAULT}; `galileo scenarios` lists those with datasets)")
-    d.add_argument("--preset", default="demo", help="the scenario's preset: demo (default), small, full, ...")
-    d.add_argument("--out", required=True, type=out_dir, help="output folder")
-    d.add_argument("--seed", type=seed_int, default=0)
+                   help="whose videos (`galileo scenarios` lists those with datasets) "
+                        f"(default: {registry.DEFAULT})")
+    d.add_argument("--preset", default="demo", metavar="NAME",
+                   help="how many videos and which: demo (a few), small, full (the paper's size), and the scenario's "
+                        "own (ramp: bounce; splash: looks, looks-small) (default: demo)")
+    d.add_argument("--out", required=True, type=out_dir, metavar="DIR", help="output folder")
+    d.add_argument("--seed", type=seed_int, default=0, help=SEED_HELP.format(what="videos"))
     d.add_argument("--workers", type=workers_int, default=None, help="render processes (default: all cores)")
     d.add_argument("--camera", default="clean", metavar="NAME",
-                   help="film the videos through a real camera's effects (ramp, splash): clean (default), phone, "
-                        "webcam, handheld, or one effect (noise, h264, exposure, flicker, whitebalance, shake, blur, "
-                        "lens, vignette, shadow, person, hand), optionally at a level in [0, 1] (shake:0.5); the "
-                        "truth is the clean video's")
+                   help="film the videos through a real camera's effects (ramp, splash): clean, phone, webcam, "
+                        "handheld, or one effect (noise, h264, exposure, flicker, whitebalance, shake, blur, lens, "
+                        "vignette, shadow, person, hand), optionally at a level in [0, 1] (shake:0.5); the truth is "
+                        "the clean video's (default: clean)")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=cmd_dataset)
 
     t = sub.add_parser("track", help="track the objects of a video: positions and velocities in metres")
     t.add_argument("video", help="video file (any format FFmpeg reads)")
-    t.add_argument("--scene", required=True, help="scene JSON whose camera describes the video")
-    t.add_argument("--out", required=True, type=out_file, help="tracks JSON to write")
-    t.add_argument("--debug-video", type=out_file,
-                   help="also write the video with features, centres and trails drawn (MP4)")
+    t.add_argument("--scene", required=True, metavar="FILE", help="scene JSON whose camera describes the video")
+    t.add_argument("--out", required=True, type=out_file, metavar="FILE", help="tracks JSON to write")
+    t.add_argument("--debug-video", type=out_file, metavar="FILE",
+                   help="also write the video with features, centres and trails drawn, as MP4 (default: none)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_track)
 
@@ -909,73 +1012,82 @@ def build_parser() -> argparse.ArgumentParser:
                                      "(MCMC over Bullet)")
     i.add_argument("video", nargs="+", help="video file; several: one problem over them (see --share, --fix); or a "
                    "folder of videos (run on Dask, one result file each in --out)")
-    i.add_argument("--scene", nargs="+", help="scene JSON describing the video (for the ramp: its camera), one per "
-                   "video in the same order; for a folder of videos, the one scene they were all filmed in (default: "
-                   "each subfolder's scene.json)")
-    i.add_argument("--tracks", nargs="+", help="tracks JSON from `galileo track`, one per video (default: track "
-                   "the videos first)")
+    i.add_argument("--scene", nargs="+", metavar="FILE",
+                   help="scene JSON describing the video (for the ramp: its camera), one per video in the same order; "
+                        "for a folder of videos, the one scene they were all filmed in (default for a folder: each "
+                        "subfolder's scene.json)")
+    i.add_argument("--tracks", nargs="+", metavar="FILE", help="tracks JSON from `galileo track`, one per video "
+                   "(default: track the videos first)")
     i.add_argument("--share", nargs="+", metavar="LATENT",
                    help="with several videos: latents with one value for all of them (e.g. the same object's "
-                        "friction k1); the others are per video, named LATENT@1, LATENT@2, ...")
+                        "friction k1); the others are per video, named LATENT@1, LATENT@2, ... (default: none shared)")
     i.add_argument("--fix", action="append", metavar="NAME=VALUE",
-                   help="fix a latent at a known value instead of inferring it (repeatable): NAME in every video, "
-                        "NAME@2 in video 2 only (e.g. a reference object's mass); added to the scene files' "
-                        "\"fixed\" sections")
-    i.add_argument("--chains", type=chains_int, default=None, help="chains (default: the scenario's protocol, ramp 16, "
-                   "splash 50)")
-    i.add_argument("--sweeps", type=sweeps_int, default=None, help="sweeps per chain (default: 75)")
-    i.add_argument("--seed", type=seed_int, default=0)
+                   help="fix a latent at a known value, in its unit, instead of inferring it (repeatable): NAME in "
+                        "every video, NAME@2 in video 2 only (e.g. a reference object's mass m1_kg=0.11); added to "
+                        "the scene files' \"fixed\" sections (default: none fixed)")
+    i.add_argument("--chains", type=chains_int, default=None, metavar="N",
+                   help="chains (default: the scenario's protocol: 16; splash 50)")
+    i.add_argument("--sweeps", type=sweeps_int, default=None, metavar="N",
+                   help="sweeps per chain (default: the scenario's protocol: 75)")
+    i.add_argument("--seed", type=seed_int, default=0, help=SEED_HELP.format(what="chains"))
     i.add_argument("--workers", type=workers_int, default=None,
                    help="worker processes (default: all cores; for a folder of videos, the local Dask cluster's)")
-    i.add_argument("--sigma", type=positive_float, default=None,
-                   help="likelihood noise SD (default: the scenario's; the ramp's is 0.05 m/s per velocity component)")
-    i.add_argument("--narrow", type=positive_float,
-                   help="half-width of the usual proposal (default: the latents', 0.05)")
-    i.add_argument("--broad", type=positive_float,
-                   help="half-width of the periodic broad proposal (default: the latents', 0.5)")
-    i.add_argument("--broad-every", type=every_int, help="every how many sweeps the broad one is used (default 20)")
+    i.add_argument("--sigma", type=positive_float, default=None, metavar="SD", help=SIGMA_HELP)
+    i.add_argument("--narrow", type=positive_float, metavar="W",
+                   help="half-width of the usual proposal, in each latent's unit (default: each latent's own, "
+                        "`galileo scenarios` lists them)")
+    i.add_argument("--broad", type=positive_float, metavar="W",
+                   help="half-width of the periodic broad proposal, in each latent's unit (default: each latent's "
+                        "own, `galileo scenarios` lists them)")
+    i.add_argument("--broad-every", type=every_int, metavar="N",
+                   help="every how many sweeps the broad proposal is used; 0: never (default: 20)")
     i.add_argument("--no-speedups", action="store_true", help="plain path: full simulations (for checks)")
     i.add_argument("--init", choices=["prior", "recognition"], default="prior",
-                   help="where chains start: drawn from the prior (the paper's default) or from what the "
-                        "recognition model reads in the video (Galileo Fig. 4)")
-    i.add_argument("--model", help="recognition model file for --init recognition (default: the built-in ramp "
-                   "model)")
+                   help="where chains start: drawn from the prior (the paper's) or from what the recognition model "
+                        "reads in the video (Galileo Fig. 4) (default: prior)")
+    i.add_argument("--model", metavar="FILE", help="recognition model file for --init recognition (default: the "
+                   "built-in ramp model)")
     i.add_argument("--recognition-move", type=bounded(1, MAX_SWEEPS, integer=True), metavar="EVERY", default=None,
                    help="with --init recognition: also propose the whole latent vector from the recognition "
-                        "model every EVERY sweeps (an exact independence MH move)")
-    i.add_argument("--moves", choices=["default", "paper", "fitted"], default="default",
-                   help="default: widths adapted in a warm-up plus the scenario's exact joint moves (ramp: k1 from "
-                        "the tracked acceleration, mass-ratio moves); paper: Galileo section 3.2 exactly; fitted: "
-                        "default plus, after the warm-up, an exact independence move fitted to every chain's "
-                        "warm-up draws (chains that a jagged likelihood holds apart meet; needs --warmup >= 10)")
-    i.add_argument("--warmup", type=every_int, default=None,
-                   help="warm-up sweeps in which widths adapt (default: half of --sweeps; dropped with the burn-in)")
+                        "model every EVERY sweeps, an exact independence MH move (default: never)")
+    i.add_argument("--moves", choices=["default", "paper", "fitted"], default="default", help=MOVES_HELP)
+    i.add_argument("--warmup", type=every_int, default=None, metavar="N",
+                   help="warm-up sweeps in which widths adapt, dropped with the burn-in (default: half of --sweeps)")
     i.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
                    help="after --sweeps, run on until every latent's rank-normalised split R-hat <= R and its "
-                        "bulk and tail ESS >= --min-ess (e.g. 1.01), or until --max-sweeps")
-    i.add_argument("--min-ess", type=nonneg_float, default=400.0, help="ESS every latent needs (default 400)")
-    i.add_argument("--max-sweeps", type=sweeps_int, default=None,
-                   help="the sweep budget of --until-rhat (default: 20 x --sweeps)")
+                        "bulk and tail ESS >= --min-ess (e.g. 1.01), or until --max-sweeps (default: stop after "
+                        "--sweeps)")
+    i.add_argument("--min-ess", type=nonneg_float, default=400.0, metavar="N",
+                   help="with --until-rhat: the effective sample size every latent needs (default: 400)")
+    i.add_argument("--max-sweeps", type=sweeps_int, default=None, metavar="N",
+                   help="with --until-rhat: the sweep budget (default: 20 x --sweeps)")
     i.add_argument("--max-seconds", type=positive_float, default=None, metavar="S",
-                   help="a wall-clock budget of --until-rhat (seconds from the start, checked between blocks; the "
-                        "result says \"stopped\": max_seconds and how many sweeps ran: --sweeps N reruns it exactly)")
+                   help="with --until-rhat: a wall-clock budget in seconds from the start, checked between blocks; "
+                        "the result says \"stopped\": max_seconds and how many sweeps ran: --sweeps N reruns it "
+                        "exactly (default: none)")
     i.add_argument("--priors", metavar="JSON", help="merged into the scene file's priors section, e.g. the ramp's "
-                   "model-mismatch options '{\"observation\": \"student_t\", \"infer_sigma\": true}'")
-    i.add_argument("--out", required=True, type=_type(check_nonempty),
+                   "model-mismatch options '{\"observation\": \"student_t\", \"infer_sigma\": true}' (default: the "
+                   "scene file's priors)")
+    i.add_argument("--out", required=True, type=_type(check_nonempty), metavar="FILE|DIR",
                    help="result JSON (the sample record goes beside it as .samples.npz); "
                    "for a folder of videos, a folder (<name>.result.json each, records/, results.csv, results.parquet)")
     i.add_argument("--quiet", action="store_true", help="no progress bars")
-    i.add_argument("--scheduler", metavar="ADDRESS", help="a folder of videos: on this running Dask scheduler")
-    i.add_argument("--slurm", metavar="JSON", help="a folder of videos: on SLURM (dask-jobqueue; see README)")
+    i.add_argument("--scheduler", metavar="ADDRESS", help="a folder of videos: on this running Dask scheduler "
+                   "(tcp://host:port) (default: a local Dask cluster of --workers processes)")
+    i.add_argument("--slurm", metavar="JSON", help="a folder of videos: on SLURM (dask-jobqueue), settings file, see "
+                   "README (default: a local Dask cluster)")
     i.add_argument("--granularity", choices=["videos", "chains"], default=None,
-                   help="a folder of videos: a Dask task per video (default) or per chain")
+                   help="a folder of videos: a Dask task per video or per chain (default: videos)")
     i.set_defaults(func=cmd_infer)
 
-    q = sub.add_parser("predict", help="answer the paper's questions from an inference result")
-    q.add_argument("--result", required=True, help="result JSON from `galileo infer`")
-    q.add_argument("--out", type=out_file, help="also write the answers to this JSON file")
+    q = sub.add_parser("predict", help="answer the paper's questions from an inference result",
+                       description="Answer the paper's questions from an inference result: each question the "
+                                   "result's scenario declares is a flag below, asked only if given.")
+    q.add_argument("--result", required=True, metavar="FILE", help="result JSON from `galileo infer`")
+    q.add_argument("--out", type=out_file, metavar="FILE",
+                   help="also write the answers to this JSON file (default: printed only)")
     q.set_defaults(func=cmd_predict)
-    on_first_parse(q, add_questions)    # each scenario's questions (Scenario.questions) as flags
+    defer(q, add_questions)    # each scenario's questions (Scenario.questions) as flags
 
     e = sub.add_parser("experiment", help="the paper's experiments over a rendered dataset on Dask (ramp: Galileo "
                        "section 6; splash: mass correlation and which is heavier), with a report and figures")
@@ -983,120 +1095,158 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", required=True, metavar="DIR", type=out_dir,
                    help="results folder: records/ (one JSON per video, kept as it finishes: run the same command "
                         "again to resume), report.json, results.parquet, results.csv, report.md, figures/")
-    e.add_argument("--chains", type=chains_int, default=None,
-                   help="chains per video (default: the scenario's protocol, ramp 16, splash 50)")
-    e.add_argument("--sweeps", type=sweeps_int, default=None, help="sweeps per chain (default: 75)")
-    e.add_argument("--seed", type=seed_int, default=0)
+    e.add_argument("--chains", type=chains_int, default=None, metavar="N",
+                   help="chains per video (default: the scenario's protocol: 16; splash 50)")
+    e.add_argument("--sweeps", type=sweeps_int, default=None, metavar="N",
+                   help="sweeps per chain (default: the scenario's protocol: 75)")
+    e.add_argument("--seed", type=seed_int, default=0, help=SEED_HELP.format(what="chains"))
     e.add_argument("--moves", choices=["default", "paper", "fitted"], default="default",
-                   help="move set of every video's chains (see galileo infer; paper: Galileo section 3.2 exactly)")
-    e.add_argument("--priors", metavar="JSON", help="merged into every video's scene priors (see galileo infer)")
+                   help="move set of every video's chains (see `galileo infer --help`; paper: Galileo section 3.2 "
+                        "exactly) (default: default)")
+    e.add_argument("--priors", metavar="JSON", help="merged into every video's scene priors (see `galileo infer "
+                   "--help`) (default: the scenes' priors)")
     e.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
-                   help="run each video's chains on until converged (see galileo infer; its record says \"stopped\")")
-    e.add_argument("--min-ess", type=nonneg_float, default=400.0, help="with --until-rhat: the ESS (default 400)")
-    e.add_argument("--max-sweeps", type=sweeps_int, default=None, help="with --until-rhat: the sweep budget a video")
+                   help="run each video's chains on until every latent's R-hat <= R and ESS >= --min-ess (see "
+                        "`galileo infer --help`; its record says \"stopped\") (default: stop after --sweeps)")
+    e.add_argument("--min-ess", type=nonneg_float, default=400.0, metavar="N",
+                   help="with --until-rhat: the effective sample size every latent needs (default: 400)")
+    e.add_argument("--max-sweeps", type=sweeps_int, default=None, metavar="N",
+                   help="with --until-rhat: the sweep budget a video (default: 20 x --sweeps)")
     e.add_argument("--max-seconds", type=positive_float, default=None, metavar="S",
-                   help="with --until-rhat: the wall-clock budget a video (e.g. 60)")
+                   help="with --until-rhat: the wall-clock budget a video, in seconds, e.g. 60 (default: none)")
     where = e.add_mutually_exclusive_group()
     where.add_argument("--workers", type=workers_int, default=None,
                        help="worker processes of the local Dask cluster (default: all cores)")
-    where.add_argument("--scheduler", metavar="ADDRESS", help="use a running Dask scheduler (tcp://host:port)")
-    where.add_argument("--slurm", metavar="JSON", help="run on SLURM (dask-jobqueue); settings file, see README")
+    where.add_argument("--scheduler", metavar="ADDRESS", help="use a running Dask scheduler (tcp://host:port) "
+                       "(default: a local Dask cluster)")
+    where.add_argument("--slurm", metavar="JSON", help="run on SLURM (dask-jobqueue); settings file, see README "
+                       "(default: a local Dask cluster)")
     e.add_argument("--recognition", metavar="EVAL_DIR",
-                   help="add the recognition model's evaluation to the report (the --out of `galileo recognize eval`)")
+                   help="add the recognition model's evaluation to the report (the --out of `galileo recognize "
+                        "eval`) (default: none)")
     e.add_argument("--granularity", choices=["videos", "chains"], default="videos",
-                   help="a Dask task per video (its chains in turn; default) or per chain")
-    e.add_argument("--quiet", action="store_true")
+                   help="a Dask task per video (its chains in turn) or per chain (default: videos)")
+    e.add_argument("--quiet", action="store_true", help="no progress bars or cluster messages")
     e.set_defaults(func=cmd_experiment)
 
     rp = sub.add_parser("report", help="rebuild report.md and its figures from a results table, running nothing")
     rp.add_argument("results", help="results.parquet or results.csv of `galileo experiment`, or its --out folder")
     rp.add_argument("--out", required=True, metavar="DIR", type=out_dir, help="folder for report.md and figures/")
     rp.add_argument("--recognition", metavar="EVAL_DIR",
-                    help="add the recognition model's evaluation (the --out folder of `galileo recognize eval`)")
+                    help="add the recognition model's evaluation (the --out folder of `galileo recognize eval`) "
+                         "(default: none)")
     rp.set_defaults(func=cmd_report)
 
     from .clicks import add_flags
 
     sc = sub.add_parser("scene", help="a scene file for your own video, from points clicked on its first frame and "
-                        "a few measured numbers (`galileo scene --help`: each scenario's points and numbers)")
+                        "a few measured numbers (`galileo scene --help`: each scenario's points and numbers)",
+                        description="A scene file for your own video, from points clicked on its first frame "
+                                    "(pixels) and a few measured numbers (metres, degrees: each in its flag's name "
+                                    "or help).")
     sc.add_argument("video", help="your video")
     sc.add_argument("--scenario", type=scenario_name, default=registry.DEFAULT, metavar="NAME",
-                    help=f"the scenario the video shows (default {registry.DEFAULT})")
+                    help=f"the scenario the video shows (default: {registry.DEFAULT})")
     sc.add_argument("--points", "--ramp-px", required=True, metavar='"u,v u,v ..."',
-                    help="the scenario's points in the video's first frame (pixels), in its order (below)")
-    sc.add_argument("--out", required=True, help="scene JSON for galileo track and galileo infer")
+                    help="the scenario's points in the video's first frame, in pixels, in its order (below)")
+    sc.add_argument("--out", required=True, metavar="FILE", help="scene JSON for galileo track and galileo infer")
     sc.set_defaults(func=cmd_scene)
-    on_first_parse(sc, add_flags)    # each scenario's numbers, from its calibration's fields
+    defer(sc, add_flags)    # each scenario's numbers, from its calibration's fields
 
     cb = sub.add_parser("calibrate", help="simulation-based calibration (rank histograms, ECDF tests, interval "
-                        "coverage) on simulated observations, or interval coverage on a rendered dataset")
+                        "coverage) on simulated observations, or interval coverage on a rendered dataset",
+                        description="Simulation-based calibration (SBC) on observations simulated from the prior, "
+                                    "or interval coverage on a rendered dataset. Each simulation or video is one "
+                                    "inference and SBC needs many (e.g. --n 200), so each is kept cheap: 4 chains x "
+                                    "200 sweeps by default, 800 sweeps where galileo infer's protocol (16 x 75, the "
+                                    "paper's) runs 1200, still keeping 4 x 100 draws after the warm-up and burn-in "
+                                    "for the --draws 99 the truth is ranked among.")
     cb.add_argument("--scenario", type=scenario_name, default=registry.DEFAULT, metavar="NAME",
-                    help=f"scenario (default {registry.DEFAULT})")
-    cb.add_argument("--n", type=count_int, default=None, help="simulations from the prior (SBC)")
+                    help=f"scenario (default: {registry.DEFAULT})")
+    cb.add_argument("--n", type=count_int, default=None, metavar="N",
+                    help="SBC: this many simulations from the prior, one inference each (default: none; give --n "
+                         "or --videos)")
     cb.add_argument("--videos", metavar="DIR", default=None,
-                    help="instead: interval coverage on this rendered dataset (folder from `galileo dataset`)")
-    cb.add_argument("--out", required=True, type=out_dir,
+                    help="instead: interval coverage on this rendered dataset, a folder from `galileo dataset` "
+                         "(default: none)")
+    cb.add_argument("--out", required=True, type=out_dir, metavar="DIR",
                     help="output folder (sbc.json, sbc.md, PNGs; or coverage.json, .md)")
-    cb.add_argument("--seed", type=seed_int, default=0)
-    cb.add_argument("--chains", type=chains_int, default=4, help="chains per simulation or video (default 4)")
-    cb.add_argument("--sweeps", type=sweeps_int, default=200, help="sweeps per chain (default 200; the first half is "
-                    "warm-up and burn-in)")
+    cb.add_argument("--seed", type=seed_int, default=0, help=SEED_HELP.format(what="simulations and chains"))
+    cb.add_argument("--chains", type=chains_int, default=4, metavar="N",
+                    help="chains per simulation or video: fewer than galileo infer's 16, since SBC runs an inference "
+                         "per simulation (default: 4)")
+    cb.add_argument("--sweeps", type=sweeps_int, default=200, metavar="N",
+                    help="sweeps per chain, the first half warm-up and burn-in: more than galileo infer's 75, so "
+                         "that 4 chains keep 400 draws to thin to --draws (default: 200)")
     cb.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
-                    help="run each inference on until R-hat <= R and ESS >= the ranked draws (or --max-sweeps)")
-    cb.add_argument("--max-sweeps", type=sweeps_int, default=None, help="the sweep budget of --until-rhat")
+                    help="run each inference on until R-hat <= R and ESS >= the ranked draws, or --max-sweeps "
+                         "(default: stop after --sweeps)")
+    cb.add_argument("--max-sweeps", type=sweeps_int, default=None, metavar="N",
+                    help="with --until-rhat: the sweep budget (default: 20 x --sweeps)")
     cb.add_argument("--moves", choices=["default", "paper", "fitted"], default="default",
-                    help="move set of every inference (see galileo infer)")
-    cb.add_argument("--draws", type=count_int, default=99,
-                    help="posterior draws the truth is ranked among (default 99)")
+                    help="move set of every inference (see `galileo infer --help`) (default: default)")
+    cb.add_argument("--draws", type=count_int, default=99, metavar="L",
+                    help="posterior draws the truth is ranked among, ranks 0..L (default: 99)")
     cb.add_argument("--scenes", default="default", metavar="default|dataset|FILE",
-                    help="the scenario's default scene, random scenes like its dataset's, or a scene file")
+                    help="the scenario's default scene, random scenes like its dataset's, or a scene file "
+                         "(default: default)")
     cb.add_argument("--workers", type=workers_int, default=None,
                     help="processes, one simulation each (default: all cores)")
     cb.add_argument("--quiet", action="store_true", help="no progress bar")
     cb.set_defaults(func=cmd_calibrate)
 
     r = sub.add_parser("recognize", help="the recognition model (Galileo section 4): mass and friction from one "
-                       "frame, trained on Galileo's own inferences")
-    rsub = r.add_subparsers(dest="recognize_command", required=True, metavar="STEP")
+                       "frame, trained on Galileo's own inferences",
+                       description="The recognition model (Galileo section 4): mass and friction from one frame, "
+                                   "trained on Galileo's own inferences.")
+    r.set_defaults(func=printing_overview(r))
+    rsub = r.add_subparsers(dest="recognize_command", metavar="STEP")
     rl = rsub.add_parser("label", help="Galileo labels: track and infer every video of a dataset "
                          "(resumable; writes DATASET/labels.galileo.json)")
-    rl.add_argument("--dataset", required=True, help="folder written by `galileo dataset`")
-    rl.add_argument("--chains", type=chains_int, default=None, help="chains per video (default: the protocol's, 16)")
-    rl.add_argument("--sweeps", type=sweeps_int, default=None, help="sweeps per chain (default 75)")
-    rl.add_argument("--seed", type=seed_int, default=0)
-    rl.add_argument("--workers", type=workers_int, default=None)
-    rl.add_argument("--quiet", action="store_true")
+    rl.add_argument("--dataset", required=True, metavar="DIR", help="folder written by `galileo dataset`")
+    rl.add_argument("--chains", type=chains_int, default=None, metavar="N",
+                    help="chains per video (default: the scenario's protocol: 16; splash 50)")
+    rl.add_argument("--sweeps", type=sweeps_int, default=None, metavar="N",
+                    help="sweeps per chain (default: the scenario's protocol: 75)")
+    rl.add_argument("--seed", type=seed_int, default=0, help=SEED_HELP.format(what="labels"))
+    rl.add_argument("--workers", type=workers_int, default=None, help="worker processes (default: all cores)")
+    rl.add_argument("--quiet", action="store_true", help="no progress bars")
     rl.set_defaults(func=cmd_recognize_label)
     rt = rsub.add_parser("train", help="train a recognition model on a dataset")
-    rt.add_argument("--dataset", required=True, help="folder written by `galileo dataset`")
+    rt.add_argument("--dataset", required=True, metavar="DIR", help="folder written by `galileo dataset`")
     rt.add_argument("--labels", choices=["galileo", "oracle", "simulation"], default="galileo",
                     help="galileo: MCMC's estimates (run `recognize label` first); oracle: ground truth; "
-                         "simulation: velocity series simulated from the prior (no video labels)")
-    rt.add_argument("--holdout-fold", type=bounded(-1, 4, integer=True), default=0,
-                    help="hold out the objects of this split (0-4) for testing; -1: train on every object")
-    rt.add_argument("--seed", type=seed_int, default=0)
-    rt.add_argument("--out", required=True, type=out_file, help="model file to write (.npz)")
-    rt.add_argument("--quiet", action="store_true")
+                         "simulation: velocity series simulated from the prior, no video labels (default: galileo)")
+    rt.add_argument("--holdout-fold", type=bounded(-1, 4, integer=True), default=0, metavar="K",
+                    help="hold out the objects of this split (0-4) for testing; -1: train on every object "
+                         "(default: 0)")
+    rt.add_argument("--seed", type=seed_int, default=0, help=SEED_HELP.format(what="model"))
+    rt.add_argument("--out", required=True, type=out_file, metavar="FILE", help="model file to write (.npz)")
+    rt.add_argument("--quiet", action="store_true", help="no progress bars")
     rt.set_defaults(func=cmd_recognize_train)
     re_ = rsub.add_parser("eval", help="the Fig. 3 table: MSE and correlation against ground truth on held-out "
                           "objects")
-    re_.add_argument("--dataset", required=True)
-    re_.add_argument("--model", help="score this model on the objects it held out (default: the whole protocol, "
-                     "5 splits, Galileo / oracle / simulation / uniform)")
-    re_.add_argument("--splits", type=bounded(2, 100, integer=True), default=5)
-    re_.add_argument("--seed", type=seed_int, default=0)
+    re_.add_argument("--dataset", required=True, metavar="DIR", help="folder written by `galileo dataset`")
+    re_.add_argument("--model", metavar="FILE", help="score this model on the objects it held out (default: the "
+                     "whole protocol: --splits splits, Galileo / oracle / simulation / uniform)")
+    re_.add_argument("--splits", type=bounded(2, 100, integer=True), default=5, metavar="K",
+                     help="the whole protocol's cross-validation: the objects in K splits, each held out once "
+                          "(2-100) (default: 5)")
+    re_.add_argument("--seed", type=seed_int, default=0, help=SEED_HELP.format(what="splits and models"))
     re_.add_argument("--no-simulation", action="store_true", help="leave the simulation-trained model out")
-    re_.add_argument("--out", required=True, type=out_dir, help="folder for table.json, table.md and the scatter PNGs")
-    re_.add_argument("--quiet", action="store_true")
+    re_.add_argument("--out", required=True, type=out_dir, metavar="DIR",
+                     help="folder for table.json, table.md and the scatter PNGs")
+    re_.add_argument("--quiet", action="store_true", help="no progress bars")
     re_.set_defaults(func=cmd_recognize_eval)
     rp = rsub.add_parser("predict", help="mass and friction of a video's objects from its first frame")
-    rp.add_argument("video")
-    rp.add_argument("--scene", required=True, help="scene JSON with the video's camera")
-    rp.add_argument("--model", help="model file (default: the built-in ramp model)")
-    rp.add_argument("--tracks", help="tracks JSON (default: track the video; where nothing moves, read the "
-                    "objects where the scene file puts them)")
+    rp.add_argument("video", help="video file (any format FFmpeg reads)")
+    rp.add_argument("--scene", required=True, metavar="FILE", help="scene JSON with the video's camera")
+    rp.add_argument("--model", metavar="FILE", help="model file (default: the built-in ramp model)")
+    rp.add_argument("--tracks", metavar="FILE", help="tracks JSON (default: track the video; where nothing moves, "
+                    "read the objects where the scene file puts them)")
     rp.add_argument("--no-track", action="store_true", help="do not track: read where the scene file puts them")
-    rp.add_argument("--out", type=out_file, help="also write the readings to this JSON file")
+    rp.add_argument("--out", type=out_file, metavar="FILE",
+                    help="also write the readings to this JSON file (default: printed only)")
     rp.set_defaults(func=cmd_recognize_predict)
 
     c = sub.add_parser("scenarios", help="list the scenarios with their latents, units and default priors")
@@ -1109,12 +1259,15 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
-    except SystemExit as e:     # --help (0) or a refused flag (2, its one line printed)
+    except SystemExit as e:     # --help, --version (0) or a refused flag (2, its one line printed)
         return int(e.code or 0) if not isinstance(e.code, str) else 2
 
     def run() -> int:
         check_not_an_input(args)
-        return args.func(args)
+        rc = args.func(args)
+        for old, new in (getattr(args, DEPRECATED, None) or {}).values():   # after the command: an error is one line
+            print(f"galileo: warning: {old} is deprecated: use {new}", file=sys.stderr)
+        return rc
 
     return run_reporting_errors("galileo", run)
 

@@ -536,6 +536,6 @@ def add_flags(parser) -> None:
         for f in own:
             seen.add(f.flag)
             meta = "|".join(f.choices) if f.choices else "X,Y,Z" if f.size == 3 else f.unit.upper() or "VALUE"
-            default = "" if f.default is None or f.required else f" (default {f.text(f.default)})"
+            default = "" if f.default is None or f.required else f" (default: {f.text(f.default)})"
             g.add_argument(f.flag, dest=f.name, metavar=meta, default=None,
                            help=f"{f.help}{' (needed)' if f.required else default}".replace("%", "%%"))

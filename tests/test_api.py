@@ -139,7 +139,7 @@ def test_predict_answers_as_the_cli_does(demo_result, tmp_path):
     """galileo.predict on a Result is `galileo predict` on its file."""
     path = tmp_path / "r.json"
     demo_result.save(path)
-    done = subprocess.run([sys.executable, "-m", "galileo", "predict", "--result", str(path), "--angle-deg", "30", "--target"],
+    done = subprocess.run([sys.executable, "-m", "galileo", "predict", "--result", str(path), "--angle-deg", "30", "--target-outcome"],
                           capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert done.returncode == 0, done.stderr
     assert galileo.predict(demo_result, angle_deg=30.0, target=True) == json.loads(done.stdout)

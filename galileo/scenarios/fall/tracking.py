@@ -222,7 +222,7 @@ def _track(video: VideoStream, video_path, region, bar, debug_video) -> FallPixe
         if f < DETECT_MAX_FRAMES:
             small.append(yuv_image(y, uv, det))
     n = len(small)
-    bar.total = (2 if debug_video is not None else 1) * video.n_frames
+    bar.total = video.n_frames   # (a bar a pass: this one, and the debug video's)
     bar.refresh()
     noise_det = noise_sd(np.stack(small[:2]).astype(np.float32))
     tau_det = (max(CHANGE_MIN_DIFF, CHANGE_NOISE_SDS * noise_det), max(HUE_MIN_DIFF, CHANGE_NOISE_SDS * noise_det))
@@ -282,6 +282,8 @@ def _track(video: VideoStream, video_path, region, bar, debug_video) -> FallPixe
     method = "change (luma, lighter, hue) from first and last frames, back-tracked from rest, outline centroid"
     track = FallPixelTrack(float(video.fps), centre, size, visible, int(release), rest, method, notes)
     if debug_video is not None:
+        bar.set_description("tracking: writing the debug video", refresh=False)
+        bar.reset(total=video.n_frames)
         _write_debug(debug_video, video, bar, track, boxes)
     return track
 

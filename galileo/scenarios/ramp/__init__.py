@@ -161,5 +161,5 @@ class RampScenario(Scenario):
             out["target"] = pred.target_outcome(self.load_scene(questions["scene"]) if questions.get("scene")
                                                 else None)
         if not out:
-            raise GalileoError("nothing to predict: give --angle-deg and/or --target (or --scene)")
+            raise GalileoError("nothing to predict: ask angle_deg (--angle-deg), target (--target-outcome) or scene (--scene)")
         return out

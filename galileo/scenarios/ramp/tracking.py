@@ -538,7 +538,7 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
     fps = cam.fps
     full_hw = (cam.height_px, cam.width_px)
     scale = work_scale(full_hw, MOG_SCALE)
-    bar = tqdm(total=2 * n, desc="tracking", unit="frame", disable=not progress)
+    bar = tqdm(total=n, desc="tracking 1/2: learning the scene", unit="frame", disable=not progress)  # (a bar a pass)
     models = _learn_scene(video, n, scale, bar)
     notes = [note for note in (video.timing_note(),) if note] + video.notes()
     noise, bg_end, small0 = models.noise, models.bg_end, models.small0
@@ -598,6 +598,8 @@ def track(video_path: str | Path, scene: Scene, *, progress: bool = True,
     frames = video.yuv()
     prev, _ = next(frames)   # (frame 0: done above)
     last = 0                 # the frame prev is: the last that shows the scene
+    bar.set_description("tracking 2/2: following the objects", refresh=False)
+    bar.reset(total=n)
     bar.update()
     for f, (gray, chroma) in enumerate(frames, start=1):
         bar.update()

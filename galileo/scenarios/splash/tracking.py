@@ -329,7 +329,7 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     release = np.asarray(scene.release_m, float)
     m_per_px = float((cam.world_to_camera[:3, :3] @ release + cam.world_to_camera[:3, 3])[2] / cam.K[0, 0])
     water_row = float(cam.project(np.array([release[0], y_plane, water]))[1]) * scale
-    bar = tqdm(total=(3 if debug_video is not None else 2) * n, desc="tracking", unit="frame", disable=not progress)
+    bar = tqdm(total=n, desc="tracking 1/2: learning the tank", unit="frame", disable=not progress)  # (a bar a pass)
     bg, noise, shown = _learn_tank(video, n, scale, bar, water_row)
     elsewhere = [False]   # whether something moved outside the region
 
@@ -374,6 +374,8 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     prev, last = None, 0                             # the last frame that shows the scene
     in_air = []                                      # (frame, region, silhouette there) of the object in the air
     wet, jumps = False, 0                            # whether it reached the water; silhouettes dropped as jumps
+    bar.set_description("tracking 2/2: following the object", refresh=False)
+    bar.reset(total=n)
     for i, (gray, blob) in enumerate(silhouettes()):
         bar.update()
         if not shown[i]:   # not the scene: nothing seen in it; tracking goes on from the last that was
@@ -441,6 +443,8 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     notes += _track_notes(obj, pos, visible, release, water, h, jumps, m_per_px)
     tracks = Tracks(cam.fps, [obj], notes, video.motion().to_json()).check()   # what `galileo track` writes
     if debug_video is not None:
+        bar.set_description("tracking: writing the debug video", refresh=False)
+        bar.reset(total=n)
         write_video(debug_video, (draw_tracks(yuv_to_rgb(y, uv), tracks, f, DEBUG_COLORS)
                                   for f, (y, uv) in enumerate(_counted(video.yuv(), bar))), cam.fps)
     bar.close()

@@ -550,7 +550,7 @@ def track_pixels(video_path: str | Path, *, top_px=None, object_px=None, progres
     region nearest it is tried first. `debug_video`: an MP4 path for the frames (at the matching's
     scale) with the centre, the object's box and held/free drawn (a fourth pass)."""
     video = VideoStream(video_path, min_frames=MIN_FRAMES)
-    bar = tqdm(desc="tracking", unit="frame", disable=not progress)
+    bar = tqdm(desc="tracking 1/3: finding what moves", unit="frame", disable=not progress)  # (a bar a pass)
     try:
         return _track(video, video_path, top_px, object_px, bar, debug_video)
     finally:
@@ -591,8 +591,8 @@ def _track(video: VideoStream, video_path, top_px, object_px, bar, debug_video) 
     sc = _Scales(video, bar, _scale(hw, DETECT_MAX_PX), _scale(hw, TRACK_MAX_PX))
     small, persist, noise = _first_pass(sc)
     n = video.n_frames
-    bar.total = (4 if debug_video is not None else 3) * n
-    bar.refresh()
+    bar.set_description("tracking 2/3: the object's outline", refresh=False)
+    bar.reset(total=n)
     regions = _candidates(persist, *(None if p is None else _to_scale(p, 1.0, sc.det) for p in (object_px, top_px)))
     if not regions:
         raise StillVideo(str(_not_found(video_path, "nothing in it keeps moving")))
@@ -607,6 +607,8 @@ def _track(video: VideoStream, video_path, top_px, object_px, bar, debug_video) 
     ref, centre_in_templ, templ, tmask, tl_ref, size = _outline(sc, rough, noise, video_path)
 
     # pass 3: matching in every frame, around the rough track's prediction
+    bar.set_description("tracking 3/3: matching the object", refresh=False)
+    bar.reset(total=n)
     centre = np.full((n, 2), np.nan)
     k = sc.trk / sc.det
     last, vel = None, np.zeros(2)
@@ -645,6 +647,8 @@ def _track(video: VideoStream, video_path, top_px, object_px, bar, debug_video) 
                        None if top_px is None else (float(top_px[0]), float(top_px[1])),
                        (size[0] / sc.trk, size[1] / sc.trk), method, notes)
     if debug_video is not None:
+        bar.set_description("tracking: writing the debug video", refresh=False)
+        bar.reset(total=n)
         _write_debug(debug_video, sc, track)
     return track
 
