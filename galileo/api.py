@@ -195,19 +195,62 @@ class Result:
         return cls(inference.to_json(), record, inference.scene, inference.tracks, inference)
 
     # what result.json says
-    scenario = property(lambda self: self.doc["scenario"])
-    names = property(lambda self: tuple(self.doc["latents"]))
-    map = property(lambda self: dict(self.doc["map"]), doc="the MAP: the sampled point of highest likelihood")
-    posterior = property(lambda self: self.doc["posterior"], doc="per latent: mean, sd, q05 ... q95 of kept draws")
-    posterior_derived = property(lambda self: self.doc["posterior_derived"],
-                                 doc="derived quantities' summaries (e.g. mass_ratio), those identified only")
-    not_identified = property(lambda self: dict(self.doc["not_identified"]),
-                              doc="{name: why} of what the videos do not identify: no point estimate for those")
-    diagnostics = property(lambda self: self.doc["diagnostics"])
-    converged = property(lambda self: bool(self.doc["converged"]))
-    why_not = property(lambda self: list(self.doc["why_not"]), doc="one line per latent that has not converged")
-    stopped = property(lambda self: self.doc.get("stopped"))
-    notes = property(lambda self: list(self.doc["notes"]))
+    @property
+    def scenario(self) -> str:
+        """The scenario's name (ramp, splash, spring, fall)."""
+        return self.doc["scenario"]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The latents, in the samples' order (`name@v`: video v's own in a problem of several)."""
+        return tuple(self.doc["latents"])
+
+    @property
+    def map(self) -> dict[str, float]:
+        """The MAP: the sampled point of highest likelihood, per latent (SI units)."""
+        return dict(self.doc["map"])
+
+    @property
+    def posterior(self) -> dict[str, dict]:
+        """Per latent: mean, sd, q05, q25, q50, q75, q95 of the kept draws (a latent the videos do not
+        identify is summarised too: its posterior is its prior's; see `not_identified`)."""
+        return self.doc["posterior"]
+
+    @property
+    def posterior_derived(self) -> dict[str, dict]:
+        """The scenario's derived quantities' summaries (the ramp's mass_ratio, the splash's mass_kg),
+        those identified only; a positive one also as `log_<name>`."""
+        return self.doc["posterior_derived"]
+
+    @property
+    def not_identified(self) -> dict[str, str]:
+        """{name: why} of what the videos do not identify: no point estimate for those."""
+        return dict(self.doc["not_identified"])
+
+    @property
+    def diagnostics(self) -> dict:
+        """R-hat, bulk and tail ESS per latent, acceptance per move, sweeps, burn-in, per chain."""
+        return self.doc["diagnostics"]
+
+    @property
+    def converged(self) -> bool:
+        """Every latent's R-hat <= 1.01 and bulk and tail ESS >= 400 (the targets in `diagnostics`)."""
+        return bool(self.doc["converged"])
+
+    @property
+    def why_not(self) -> list[str]:
+        """One line per latent that has not converged."""
+        return list(self.doc["why_not"])
+
+    @property
+    def stopped(self) -> str | None:
+        """Running until converged: "converged", "max_sweeps" or "max_seconds" (None otherwise)."""
+        return self.doc.get("stopped")
+
+    @property
+    def notes(self) -> list[str]:
+        """What the tracks say about themselves (nothing moves, the camera moved, ...)."""
+        return list(self.doc["notes"])
 
     @property
     def samples(self) -> np.ndarray:
@@ -226,10 +269,12 @@ class Result:
 
     @property
     def units(self) -> dict[str, str]:
+        """Each latent's unit, and each derived quantity's ("1": dimensionless)."""
         from . import registry
 
         units = {lat.name: lat.unit for lat in registry.of(self.scene).latents(self.scene) if lat.name in self.names}
-        return {n: units.get(n, unit_of(n)) for n in self.names}
+        derived = [k for k in self.posterior_derived if not k.startswith("log_")]
+        return {**{n: units.get(n, unit_of(n)) for n in self.names}, **{k: unit_of(k) for k in derived}}
 
     def derived_draws(self) -> dict[str, np.ndarray]:
         """The identified derived quantities (those `posterior_derived` summarises, logs aside) at
@@ -252,14 +297,15 @@ class Result:
         """ArviZ's data for this result: an `xarray.DataTree` with groups posterior (latents and the
         identified derived quantities, units as attributes), warmup_posterior, sample_stats (lp: the
         log-likelihood, acceptance, per-move acceptance), observed_data (the tracks, when known);
-        see `galileo.inferencedata`. Save it with `.to_netcdf(path)` or `.to_zarr(path)`."""
+        see `galileo.inferencedata`. Save it with `.to_netcdf(path)` (or `.to_zarr(path)` with the
+        zarr package installed) and reopen it with `xarray.open_datatree(path)`."""
         from .inferencedata import to_datatree
 
         rec = self.record
         proposals = {k[len("proposal_"):]: np.asarray(v) for k, v in rec.items() if k.startswith("proposal_")}
         codes = ((self.doc.get("config") or {}).get("moves") or {}).get("codes") or {}
         derived = self.derived_draws()
-        units = {**self.units, **{k: unit_of(k) for k in derived}}
+        units = self.units
         diag = self.diagnostics
         attrs = {"scenario": self.scenario, "converged": self.converged, "stopped": self.stopped,
                  "why_not": self.why_not, "r_hat": diag["r_hat"], "ess_bulk": diag["ess"], "ess_tail": diag["ess_tail"],
@@ -361,7 +407,13 @@ def predict(result: Result | str | Path, **answers: Any) -> dict:
         q = own[name]
         if q.kind == "number" and q.bound is not None and value is not None and not q.bound.contains(value):
             raise GalileoError(f"{name} must be in {q.bound}, got {value:g}")
-    return scenario.predict(str(result), {name: answers.get(name) for name in own})
+    out = scenario.predict(str(result), {name: answers.get(name) for name in own})
+    if d.get("converged") is False:
+        import warnings
+
+        warnings.warn("these posterior shares come from chains that have not converged "
+                      f"({(d.get('why_not') or ['?'])[0]}); trust the MAP answer, not the shares", stacklevel=2)
+    return out
 
 
 def experiment(dataset: str | Path, out: str | Path, *, client=None, workers: int | None = None,
@@ -372,7 +424,8 @@ def experiment(dataset: str | Path, out: str | Path, *, client=None, workers: in
     """The paper's experiments over a rendered dataset (`galileo experiment`): every video tracked
     and inferred, OUT/report.md, results.parquet and results.csv written (a rerun resumes); the
     report as a dict. `client`: a `dask.distributed.Client` to run on (default: a local cluster of
-    `workers` processes); `granularity`: a Dask task per video or per chain ("chains");
+    `workers` processes). In a script, call it under `if __name__ == "__main__":` (Dask's worker
+    processes import the script that starts them); `granularity`: a Dask task per video or per chain ("chains");
     `recognition`: a `galileo recognize eval` folder whose figures join the report."""
     from . import batch, registry
 

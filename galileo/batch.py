@@ -56,7 +56,7 @@ CLUSTER_CONFIG = {
     # dashboard page nobody needs here
     "distributed.worker.profile.enabled": False,
 }
-# the settings a SLURM cluster is built from (`--slurm FILE.json`): documented in the README
+# the settings a SLURM cluster is built from (`--slurm FILE.json`): documented in docs/cluster.md
 SLURM_SETTINGS = {"queue": None, "account": None, "cores": 16, "memory": "32GB", "walltime": "02:00:00",
                   "jobs": 1, "job_extra_directives": [], "python": None, "local_directory": None}
 

@@ -1075,7 +1075,7 @@ def build_parser(lazy: bool = True) -> argparse.ArgumentParser:
     i.add_argument("--scheduler", metavar="ADDRESS", help="a folder of videos: on this running Dask scheduler "
                    "(tcp://host:port) (default: a local Dask cluster of --workers processes)")
     i.add_argument("--slurm", metavar="JSON", help="a folder of videos: on SLURM (dask-jobqueue), settings file, see "
-                   "README (default: a local Dask cluster)")
+                   "docs/cluster.md (default: a local Dask cluster)")
     i.add_argument("--granularity", choices=["videos", "chains"], default=None,
                    help="a folder of videos: a Dask task per video or per chain (default: videos)")
     i.set_defaults(func=cmd_infer)
@@ -1119,7 +1119,7 @@ def build_parser(lazy: bool = True) -> argparse.ArgumentParser:
                        help="worker processes of the local Dask cluster (default: all cores)")
     where.add_argument("--scheduler", metavar="ADDRESS", help="use a running Dask scheduler (tcp://host:port) "
                        "(default: a local Dask cluster)")
-    where.add_argument("--slurm", metavar="JSON", help="run on SLURM (dask-jobqueue); settings file, see README "
+    where.add_argument("--slurm", metavar="JSON", help="run on SLURM (dask-jobqueue); settings file, see docs/cluster.md "
                        "(default: a local Dask cluster)")
     e.add_argument("--recognition", metavar="EVAL_DIR",
                    help="add the recognition model's evaluation to the report (the --out of `galileo recognize "

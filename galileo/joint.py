@@ -401,7 +401,8 @@ class JointScenario(Scenario):
 
     def unidentified(self, scene: JointScene, tracks=None) -> dict[str, str]:
         """The base scenario's, over the problem's videos, fixed latents and tracks (if known)."""
-        return self.base.not_identified(scene.scenes, scene.fixed, None if tracks is None else tracks_list(tracks))
+        return self.base.not_identified(scene.scenes, scene.fixed, None if tracks is None else tracks_list(tracks),
+                                        scene.share)
 
     def summary(self, scene, values, omit=()):
         parts = [f"{k} = {v:.4g}" for k, v in values.items() if k not in omit]

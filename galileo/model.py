@@ -150,13 +150,14 @@ class Scenario(ABC):
         return ()
 
     def not_identified(self, prepared_scenes: Sequence, fixed: dict[str, float],
-                       tracks: Sequence[Tracks] | None = None) -> dict[str, str]:
+                       tracks: Sequence[Tracks] | None = None, share: Sequence[str] = ()) -> dict[str, str]:
         """The latents and derived quantities (as the problem names them: `name@v` for one
         video's own in a problem of several) that these videos, with these latents fixed, do
         not identify, each with why (result.json's "not_identified"; a derived quantity named
         here gets no point estimate and no posterior summary). `tracks`, one per scene where
         known: what was observed (a video in which nothing moves identifies less than its scene
-        could). Default: none said."""
+        could); `share`: the latents the problem shares (one value for all its videos, named
+        without `@v`). Default: none said."""
         return {}
 
     def unidentified(self, scene, tracks=None) -> dict[str, str]:

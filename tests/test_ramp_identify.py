@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from galileo import registry
+from galileo.datatypes import Tracks
 from galileo.runner import RunConfig, infer
 from galileo.scenarios.ramp.identify import moves, not_identified
 from galileo.scenarios.ramp.tracking import held_still
@@ -57,6 +58,22 @@ def test_the_rule_per_video_and_problem():
     assert f"{math.tan(math.radians(scene.ramp.angle_deg)):.3f}" in out["k1"]   # the bound it does give
     two = not_identified([scene, scene], {"m2_kg@1": 0.1})
     assert set(two) == {"m1_kg@2", "m2_kg@2"}
+
+
+def test_shared_latents_are_identified_by_any_of_their_videos():
+    """A shared mass carries a weighing from one collision into another: the same block (m1 shared)
+    hits a weighed box in video 1 and an unweighed one in video 2, so both boxes are weighed; a
+    shared k1 is identified by the video in which the block slides, though the other holds it
+    still. Without the reference every mass is unweighed (the ratios only)."""
+    scene = _scene()
+    assert not_identified([scene, scene], {"m2_kg@1": 0.137}, share=("m1_kg", "k1")) == {}
+    assert set(not_identified([scene, scene], {}, share=("m1_kg", "k1"))) == {"m1_kg", "m2_kg@1", "m2_kg@2"}
+    assert set(not_identified([scene, scene], {"m2_kg@1": 0.137})) == {"m1_kg@2", "m2_kg@2"}   # (nothing shared)
+    still = held_still(scene, 30)
+    moving = Tracks.load(DATA / "tracks.json")   # (the demo: the block slides and hits the box)
+    out = not_identified([scene, scene], {"m2_kg": 0.1}, [still, moving], share=("k1",))
+    assert "k1" not in out and {"m1_kg@1", "k2@1", "mass_ratio@1"} <= set(out)
+    assert "k1" in not_identified([scene, scene], {"m2_kg": 0.1}, [still, still], share=("k1",))
 
 
 def test_a_still_video_gets_no_mass_ratio_and_no_interval():

@@ -101,7 +101,7 @@ class FallScenario(Scenario):
                 seen[name] = seen.get(name, 0) + 1
         return tuple(n for n, c in seen.items() if c > 1 and n.startswith(("e_", "mu_")))
 
-    def not_identified(self, prepared_scenes, fixed, tracks=None):
+    def not_identified(self, prepared_scenes, fixed, tracks=None, share=()):
         out = {}
         for s in prepared_scenes:
             out[object_mass_latent(s.object)] = ("not a latent: a rigid object's fall, bounce and slide on a fixed "

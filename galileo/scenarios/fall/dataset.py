@@ -251,7 +251,7 @@ def silhouette_centres_px(masks: list[np.ndarray]) -> list[list[float] | None]:
 
 
 def truth_json(scene: FallScene, setup, motion: Trajectory, masks, seen) -> dict:
-    """What the video shows, for the tracker's and the inference's evaluation (see README)."""
+    """What the video shows, for the tracker's and the inference's evaluation (see docs/formats.md)."""
     traj = frames_of(motion, scene)
     pos = traj.position_m[0]
     first, second = bounce_apexes_m(motion, float(pos[-1, 2]))

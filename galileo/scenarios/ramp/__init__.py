@@ -124,10 +124,10 @@ class RampScenario(Scenario):
             objects.append(Mesh(obj.name, np.asarray(m.vertices), np.asarray(m.faces), OBJECT_COLORS[i % 2]))
         return Drawing(static=(ramp,), objects=tuple(objects), ground_z_m=0.0)
 
-    def not_identified(self, prepared_scenes, fixed, tracks=None):
+    def not_identified(self, prepared_scenes, fixed, tracks=None, share=()):
         from .identify import not_identified
 
-        return not_identified(prepared_scenes, fixed, tracks)
+        return not_identified(prepared_scenes, fixed, tracks, share)
 
     def derived(self, scene, values):
         if "m2_kg" in values:

@@ -30,41 +30,62 @@ def moves(tracks: Tracks, role: str) -> bool:
     return bool(len(pos) and np.ptp(pos, axis=0).max() > 0)
 
 
-def not_identified(scenes: Sequence[Scene], fixed: dict[str, float],
-                   tracks: Sequence[Tracks] | None = None) -> dict[str, str]:
+def not_identified(scenes: Sequence[Scene], fixed: dict[str, float], tracks: Sequence[Tracks] | None = None,
+                   share: Sequence[str] = ()) -> dict[str, str]:
     """{name as the problem names it: why it is not identified} for a problem of these ramp
-    videos (the module docstring), with these latents fixed and, where known, their tracks."""
+    videos (the module docstring), with these latents fixed and shared and, where known, their
+    tracks. A shared latent is identified when any of its videos identifies it; masses are
+    weighed along collisions: a known mass (fixed) and a collision's ratio give the other mass,
+    which a shared mass carries into the videos that share it."""
     from ...joint import video_name
 
     n = len(scenes)
+
+    def node(k: str, v: int) -> str:   # the problem's name of video v's latent k
+        return k if k in share else video_name(k, v, n)
+
+    def is_fixed(k: str, v: int) -> bool:
+        return k in fixed or video_name(k, v, n) in fixed
+
+    slid = [tracks is None or moves(tracks[v], "ramp") for v in range(n)]
+    hit = [s.target is not None and (tracks is None or moves(tracks[v], "target")) for v, s in enumerate(scenes)]
+    weighed = {node(k, v) for v in range(n) for k in ("m1_kg", "m2_kg") if is_fixed(k, v)}
+    links = [(node("m1_kg", v), node("m2_kg", v)) for v in range(n) if hit[v]]
+    grown = True
+    while grown:   # a collision's ratio weighs one mass by the other
+        grown = False
+        for a, b in links:
+            if (a in weighed) != (b in weighed):
+                weighed |= {a, b}
+                grown = True
+    seen = {node("k1", v) for v in range(n) if slid[v]} | {node(k, v) for v in range(n) if hit[v]
+                                                           for k in ("k2", "e_collision")}
     out: dict[str, str] = {}
-    for v, s in enumerate(scenes):
-        def name(k: str) -> str:
-            return video_name(k, v, n)
-
-        def known(k: str) -> bool:
-            return k in fixed or name(k) in fixed
-
-        slid = tracks is None or moves(tracks[v], "ramp")
-        hit = s.target is not None and (tracks is None or moves(tracks[v], "target"))
-        if not slid:
+    for v in sorted(range(n), key=lambda v: not hit[v]):   # (collisions first: theirs is the fuller reason)
+        s = scenes[v]
+        if node("k1", v) not in seen and not is_fixed("k1", v):
             tan = math.tan(math.radians(s.ramp.angle_deg))
-            out[name("k1")] = (f"nothing slides: only a bound, k1 >= tan({s.ramp.angle_deg:g} deg) = {tan:.3f} "
-                               f"(above it the posterior is the prior)")
-        if hit:
-            if not (known("m1_kg") or known("m2_kg")):
-                out[name("m1_kg")] = out[name("m2_kg")] = (
-                    "only the ratio m1/m2 is identified: the collision fixes it, and both masses scaled together "
-                    "make the same video (fix one, e.g. --fix m2_kg=0.1, to weigh the other)")
+            out.setdefault(node("k1", v), f"nothing slides: only a bound, k1 >= tan({s.ramp.angle_deg:g} deg) = "
+                                          f"{tan:.3f} (above it the posterior is the prior)")
+        if hit[v]:
+            if node("m1_kg", v) not in weighed:
+                for k in ("m1_kg", "m2_kg"):
+                    out.setdefault(node(k, v), "only the ratio m1/m2 is identified: the collision fixes it, and both "
+                                               "masses scaled together make the same video (fix one, e.g. --fix "
+                                               "m2_kg=0.1, to weigh the other)")
             continue
         why = ("no collision: an object's slide does not depend on its mass (gravity and friction both scale with it)"
-               if s.target is None else "nothing moves: no collision to weigh the objects by" if not slid else
+               if s.target is None else "nothing moves: no collision to weigh the objects by" if not slid[v] else
                "the target never moves: no collision to weigh the objects by")
-        for k in ("m1_kg", "m2_kg", "mass_ratio") if s.target is not None else ("m1_kg",):
-            if not known(k):
-                out[name(k)] = why
+        masses = ("m1_kg", "m2_kg") if s.target is not None else ("m1_kg",)
+        for k in masses:
+            if node(k, v) not in weighed and not is_fixed(k, v):
+                out.setdefault(node(k, v), why)
         if s.target is not None:
-            out[name("k2")] = "the target never moves: its friction does not enter the video"
-            if "e_collision" in s.latent_names:
-                out[name("e_collision")] = why
+            if not all(node(k, v) in weighed for k in masses):
+                out.setdefault(video_name("mass_ratio", v, n), why)
+            for k, what in (("k2", "the target never moves: its friction does not enter the video"),
+                            ("e_collision", why)):
+                if node(k, v) not in seen and not is_fixed(k, v) and (k == "k2" or k in s.latent_names):
+                    out.setdefault(node(k, v), what)
     return out

@@ -102,7 +102,7 @@ class SpringScenario(Scenario):
                 seen[name] = seen.get(name, 0) + 1
         return tuple(n for n, c in seen.items() if c > 1 and n not in ("x0_m", "z0_m", "vx0_mps", "vz0_mps", "scale"))
 
-    def not_identified(self, prepared_scenes, fixed, tracks=None):
+    def not_identified(self, prepared_scenes, fixed, tracks=None, share=()):
         from .identify import not_identified
 
         return not_identified(prepared_scenes, fixed)
