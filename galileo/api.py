@@ -99,7 +99,7 @@ def run_config(scenario, *, chains: int | None = None, sweeps: int | None = None
     return cfg
 
 
-def infer(scene, observed, *, share: Sequence[str] = (), fix: dict | None = None, chains: int | None = None,
+def infer(scene, observed, *, tracks=None, share: Sequence[str] = (), fix: dict | None = None, chains: int | None = None,
           sweeps: int | None = None, seed: int = 0, workers: int | None = None, sigma: float | None = None,
           moves: str = "default", warmup: int | None = None, until_rhat: float | None = None,
           min_ess: float | None = None, max_sweeps: int | None = None, max_seconds: float | None = None,
@@ -109,7 +109,8 @@ def infer(scene, observed, *, share: Sequence[str] = (), fix: dict | None = None
     """Infer a scene's latents from a video (`galileo infer`): a `Result`.
 
     `scene`: a scene or its file; `observed`: the video's file or its `Tracks` (tracked first if a
-    video). Several videos as one problem: lists of scenes and of videos/tracks, with `share` (latents
+    video); `tracks`: the video's tracks made already (`galileo infer --tracks`), the video then read
+    only by `init` recognition. Several videos as one problem: lists of scenes and of videos/tracks, with `share` (latents
     with one value for all) and `fix` ({name: value}: NAME in every video, NAME@2 in video 2 only).
     The other settings are `galileo infer`'s flags (`chains`, `sweeps`: the scenario's protocol by
     default; `moves`: default|paper|fitted; `until_rhat` with its budgets `max_sweeps`,
@@ -122,6 +123,11 @@ def infer(scene, observed, *, share: Sequence[str] = (), fix: dict | None = None
     observed = list(observed) if isinstance(observed, (list, tuple)) else [observed]
     if len(observed) != len(scenes):
         raise GalileoError(f"{len(scenes)} scene(s) need as many videos or tracks, got {len(observed)}")
+    made = None
+    if tracks is not None:
+        made = list(tracks) if isinstance(tracks, (list, tuple)) else [tracks]
+        if len(made) != len(scenes):
+            raise GalileoError(f"tracks: one per video ({len(scenes)}), got {len(made)}")
     if share and len(scenes) == 1:
         raise GalileoError("share is for several videos (one value of a latent for all of them)")
     fixed = {}
@@ -153,12 +159,14 @@ def infer(scene, observed, *, share: Sequence[str] = (), fix: dict | None = None
     elif model is not None:
         raise GalileoError("model is for init recognition")
     tracks, videos = [], []
-    for obs, s in zip(observed, scenes):
-        if isinstance(obs, (str, Path)):
-            videos.append(obs)
-            tracks.append(track(obs, s, progress=progress))
+    for v, (obs, s) in enumerate(zip(observed, scenes)):
+        video = obs if isinstance(obs, (str, Path)) else None
+        videos.append(video)
+        if made is not None:
+            tracks.append(load_tracks(made[v]) if isinstance(made[v], (str, Path)) else made[v])
+        elif video is not None:
+            tracks.append(track(video, s, progress=progress))
         else:
-            videos.append(None)
             tracks.append(obs)
     start = None
     if loaded is not None:

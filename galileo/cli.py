@@ -390,8 +390,9 @@ def cmd_infer(args: argparse.Namespace) -> int:
         raise GalileoError("--init recognition reads one video: for several, chains start from the prior")
     several = len(videos) > 1
     scenes = [registry.load_scene(p) for p in args.scene]
-    observed = [Tracks.load(t) for t in args.tracks] if args.tracks else videos
-    done = api.infer(scenes if several else scenes[0], observed if several else observed[0], share=args.share or (),
+    made = [Tracks.load(t) for t in args.tracks] if args.tracks else None
+    done = api.infer(scenes if several else scenes[0], videos if several else videos[0],
+                     tracks=None if made is None else made if several else made[0], share=args.share or (),
                      fix=fixed_arg(args.fix), chains=args.chains, sweeps=args.sweeps, seed=args.seed,
                      workers=args.workers, sigma=args.sigma, moves=args.moves, warmup=args.warmup,
                      until_rhat=args.until_rhat, min_ess=args.min_ess, max_sweeps=args.max_sweeps,

@@ -185,3 +185,16 @@ def test_import_galileo_stays_light():
                          env={**os.environ, "PYTHONPATH": str(ROOT)}).stdout.split()
     assert out[:2] == ["False", "False"], out
 
+
+
+def test_tracks_made_already_with_chains_started_by_recognition(demo_dir):
+    """`tracks=` stands for `galileo infer --tracks`: the video is not tracked again, and is still
+    what the recognition model reads to start the chains."""
+    scene = galileo.load_scene(demo_dir / "scene.json")
+    tracks = galileo.load_tracks(DATA / "tracks.json")
+    r = galileo.infer(scene, demo_dir / "video.mp4", tracks=tracks, init="recognition", chains=2, sweeps=4,
+                      workers=1, progress=False)
+    assert r.doc["init"]["starts"] == "recognition", r.doc["init"]
+    assert r.tracks is tracks
+    with pytest.raises(GalileoError, match="give its file, not its tracks"):
+        galileo.infer(scene, tracks, init="recognition", chains=2, sweeps=4, workers=1, progress=False)
