@@ -31,6 +31,7 @@ import numpy as np
 
 from .errors import GalileoError
 
+WIDTH_RANGES = 100   # a proposal width at most this many times its latent's prior range
 UNIT_SUFFIXES = (("_g_cm3", "g/cm^3"), ("_cm3", "cm^3"), ("_kg", "kg"), ("_Nspm", "N s/m"), ("_Npm", "N/m"),
                  ("_mps", "m/s"), ("_m", "m"), ("_s", "s"), ("_deg", "deg"), ("_px", "px"))
 
@@ -99,6 +100,29 @@ def run_config(scenario, *, chains: int | None = None, sweeps: int | None = None
     return cfg
 
 
+def checked_settings(cfg, scenario, scene):
+    """The run's sampler settings checked by the library's one rule (latents.check_noise for the
+    noise (--sigma), check_widths for the proposal widths (--narrow, --broad, --broad-every),
+    check_bounds for the priors); a width given more than WIDTH_RANGES times a latent's prior
+    range is refused too (its proposals would almost never land inside the prior: chains that never
+    move, as a width of 0 makes chains that accept everything)."""
+    latents = scenario.latents(scene)
+    try:
+        settings = cfg.settings(latents, scenario.noise, scenario.paper_widths)
+    except ValueError as e:
+        raise GalileoError(str(e)) from None
+    for flag, given, w in (("--narrow", cfg.narrow, settings.narrow), ("--broad", cfg.broad, settings.broad)):
+        if given is None:
+            continue
+        ws = w if isinstance(w, tuple) else (w,) * len(latents)
+        for lat, width in zip(latents, ws):
+            lo, hi = settings.bounds[lat.name]
+            if width > WIDTH_RANGES * (hi - lo):
+                raise GalileoError(f"{flag} {width:g} is more than {WIDTH_RANGES} times {lat.name}'s prior range "
+                                   f"({hi - lo:g} {lat.unit}): its proposals would almost never land inside the prior")
+    return settings
+
+
 def infer(scene, observed, *, tracks=None, share: Sequence[str] = (), fix: dict | None = None, chains: int | None = None,
           sweeps: int | None = None, seed: int = 0, workers: int | None = None, sigma: float | None = None,
           moves: str = "default", warmup: int | None = None, until_rhat: float | None = None,
@@ -142,8 +166,6 @@ def infer(scene, observed, *, tracks=None, share: Sequence[str] = (), fix: dict 
                      warmup=warmup, until_rhat=until_rhat, min_ess=min_ess, max_sweeps=max_sweeps,
                      max_seconds=max_seconds, priors=priors, narrow=narrow, broad=broad, broad_every=broad_every,
                      speedups=speedups)
-    from .cli import checked_settings
-
     checked_settings(cfg, scenario, problem)
     if init not in ("prior", "recognition"):
         raise GalileoError(f"init must be prior or recognition, got {init!r}")

@@ -27,7 +27,6 @@ MAX_CHAINS = 1000
 MAX_SWEEPS = 100_000        # --sweeps, --max-sweeps, --warmup, --broad-every, --recognition-move
 MAX_WORKERS = 256
 MAX_COUNT = 100_000         # calibrate's --n and --draws
-WIDTH_RANGES = 100          # a proposal width at most this many times its latent's prior range
 
 
 def one_line(message) -> str:
@@ -435,7 +434,7 @@ def cmd_infer(args: argparse.Namespace) -> int:
 
 def infer_folder(args: argparse.Namespace) -> int:
     """galileo infer FOLDER: every video of the folder on Dask (galileo.batch.infer_folder)."""
-    from . import batch, registry
+    from . import api, batch, registry
     from .runner import RunConfig
 
     for flag, given in (("--tracks", args.tracks), ("--init recognition", args.init == "recognition"),
@@ -456,7 +455,7 @@ def infer_folder(args: argparse.Namespace) -> int:
                     min_ess=args.min_ess, max_sweeps=args.max_sweeps, max_seconds=args.max_seconds,
                     priors=priors_arg(args.priors))
     cfg.check()
-    checked_settings(cfg, registry.of(first), first)
+    api.checked_settings(cfg, registry.of(first), first)
     log = (lambda m: print(m, file=sys.stderr)) if not args.quiet else None
     with batch.open_client(args.workers, args.scheduler, slurm_arg(args.slurm), log=log) as client:
         done = batch.infer_folder(args.video, args.scene, cfg, args.out, client,
@@ -471,29 +470,6 @@ def infer_folder(args: argparse.Namespace) -> int:
     if done.failed:
         print(f"galileo: warning: {len(done.failed)} videos failed: {', '.join(done.failed[:5])}", file=sys.stderr)
     return 0
-
-
-def checked_settings(cfg, scenario, scene):
-    """The run's sampler settings checked by the library's one rule (latents.check_noise for
-    --sigma, check_widths for --narrow/--broad/--broad-every, check_bounds for --priors); a
-    width given on the command line more than WIDTH_RANGES times a latent's prior range is
-    refused too (its proposals would almost never land inside the prior: chains that never
-    move, as a width of 0 makes chains that accept everything)."""
-    latents = scenario.latents(scene)
-    try:
-        settings = cfg.settings(latents, scenario.noise, scenario.paper_widths)
-    except ValueError as e:
-        raise GalileoError(str(e)) from None
-    for flag, given, w in (("--narrow", cfg.narrow, settings.narrow), ("--broad", cfg.broad, settings.broad)):
-        if given is None:
-            continue
-        ws = w if isinstance(w, tuple) else (w,) * len(latents)
-        for lat, width in zip(latents, ws):
-            lo, hi = settings.bounds[lat.name]
-            if width > WIDTH_RANGES * (hi - lo):
-                raise GalileoError(f"{flag} {width:g} is more than {WIDTH_RANGES} times {lat.name}'s prior range "
-                                   f"({hi - lo:g} {lat.unit}): its proposals would almost never land inside the prior")
-    return settings
 
 
 def priors_arg(text: str | None) -> dict | None:

@@ -7,7 +7,11 @@ records. `build_report` writes report.md and figures/*.png: a header (dataset, c
 fitted/skipped/failed counts, the failed videos' errors), the scenario's own sections (its
 package's `report.sections(records, fig_dir) -> list[Section]`, found through the registry),
 then three sections every scenario gets: convergence (R-hat per latent), interval coverage
-(every latent with both a truth and a posterior) and time and memory per video and worker.
+(every latent with both a truth and a posterior, counted over the videos that identify it: a
+quantity a record lists in `not_identified` is greyed and labelled so) and time and memory per
+video and worker ("worker 1", "worker 2", ... on an axis from 0 MiB). Figures set the paper's
+numbers beside ours (`paper_bars`: a dashed line labelled "paper: <value>"); log axes label
+their major ticks only (`plain_log_axes`).
 
 This module names no latent: it reads whatever the records carry.
 """
@@ -368,24 +372,83 @@ def no_data(title: str, paper: str, why: str) -> Section:
     return Section(title, paper, None, f"No data: {why}.")
 
 
-def new_figure(ncols: int = 1, size_in: tuple[float, float] = FIG_SIZE_IN):
-    """(figure, axes) without pyplot (no display, no global state)."""
+def new_figure(ncols: int = 1, size_in: tuple[float, float] = FIG_SIZE_IN, width_ratios: list[float] | None = None):
+    """(figure, axes) without pyplot (no display, no global state); `width_ratios` for axes of
+    different widths (e.g. a figure beside a narrow panel of the paper's numbers)."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=size_in)
-    return fig, fig.subplots(1, ncols)
+    return fig, fig.subplots(1, ncols, gridspec_kw={"width_ratios": width_ratios} if width_ratios else None)
+
+
+def _log_subs(vmin: float, vmax: float) -> tuple[float, ...]:
+    """Which multiples of each decade carry a labelled tick: fewer as the axis spans more
+    decades, so that labels never run into each other (0.6, 0.7, 0.8, 0.9 and 1 crowd the top
+    of a decade)."""
+    decades = abs(math.log10(vmax / vmin)) if vmin > 0 and vmax > 0 else math.inf
+    return (1.0, 2.0, 3.0, 5.0) if decades <= 1.2 else (1.0, 2.0, 5.0) if decades <= 3.5 else (1.0,)
+
+
+def _plain_log_locator():
+    """A log axis's major ticks at 1, 2, 5 x 10^n or fewer (`_log_subs`; matplotlib's LogLocator
+    falls back to evenly spaced ticks where a narrow axis holds at most one)."""
+    from matplotlib.ticker import LogLocator
+
+    class PlainLogLocator(LogLocator):
+        def tick_values(self, vmin, vmax):
+            self._subs = np.array(_log_subs(vmin, vmax))
+            return super().tick_values(vmin, vmax)
+
+    return PlainLogLocator(base=10.0, subs=(1.0,))
 
 
 def plain_log_axes(ax, which: str = "xy") -> None:
-    """Log scale on `which` axes, ticks written as plain numbers (0.5, 1, 2, not 5x10^-1)."""
-    from matplotlib.ticker import FuncFormatter
+    """Log scale on `which` axes, ticks written as plain numbers (0.5, 1, 2, not 5x10^-1): labels
+    on the major ticks only (`_log_subs` picks them by the axis's span), minor ticks unlabelled."""
+    from matplotlib.ticker import FuncFormatter, NullFormatter
 
     plain = FuncFormatter(lambda v, _: f"{v:g}")
     for name in which:
         axis = ax.xaxis if name == "x" else ax.yaxis
         (ax.set_xscale if name == "x" else ax.set_yscale)("log")
+        axis.set_major_locator(_plain_log_locator())
         axis.set_major_formatter(plain)
-        axis.set_minor_formatter(plain)
+        axis.set_minor_formatter(NullFormatter())
+
+
+PAPER_COLOR = "tab:purple"
+
+
+def paper_bars(ax, items: list[tuple[str, float | None, float | None, str | None]], ylabel: str,
+               title: str = "against the paper") -> None:
+    """A narrow panel setting our numbers beside the paper's: per item (name, ours, the paper's
+    value, how the paper states it), a bar at ours (its value written above it, n/a without
+    one) and a dashed line at the paper's labelled "paper: <statement>" (the line's label too),
+    over its bar, or across the panel where every item shares one paper value."""
+    names = [it[0] for it in items]
+    ours = np.array([it[1] if finite(it[1]) else np.nan for it in items], float)
+    x = np.arange(len(items))
+    ax.bar(x, np.nan_to_num(ours), 0.6, color="tab:blue", alpha=0.8, label="ours")
+    for j, v in enumerate(ours):
+        ax.text(j, (v if math.isfinite(v) else 0.0) + 0.03, fmt(v, 2) if math.isfinite(v) else NA, ha="center",
+                va="bottom", fontsize=8)
+    refs = [(j, it[2], it[3] if it[3] is not None else fmt(it[2], 2)) for j, it in enumerate(items) if finite(it[2])]
+    box = {"facecolor": "white", "edgecolor": "none", "alpha": 0.85, "pad": 1.0}
+    if len(refs) == len(items) and len({(v, s) for _, v, s in refs}) == 1:
+        _, v, text = refs[0]
+        ax.axhline(v, color=PAPER_COLOR, ls="--", lw=1.5, label=f"paper: {text}")
+        ax.text(-0.45, v + 0.015, f"paper: {text}", color=PAPER_COLOR, fontsize=8, ha="left", va="bottom", bbox=box)
+    else:
+        for j, v, text in refs:
+            ax.plot([j - 0.45, j + 0.45], [v, v], color=PAPER_COLOR, ls="--", lw=1.5, label=f"paper: {text}")
+            ax.text(j, v + 0.015, f"paper: {text}", color=PAPER_COLOR, fontsize=7.5, ha="center", va="bottom",
+                    bbox=box)
+    low = min([0.0, *(v for v in ours if math.isfinite(v)), *(v for _, v, _ in refs)])
+    ax.set_ylim(low - 0.05 if low < 0 else 0.0, 1.12)
+    ax.axhline(0, color="0.6", lw=0.6)
+    ax.set_xticks(x, names, fontsize=8)
+    ax.set_xlim(-0.5, len(items) - 0.5)
+    ax.set(ylabel=ylabel, title=title)
 
 
 def diagonal(ax, label: str) -> None:
@@ -465,104 +528,168 @@ def convergence_section(records: list[dict], fig_dir: Path) -> Section:
     return Section(title, paper, png, body, {"converged": conv, "latents": per})
 
 
-def coverage(records: list[dict], interval: tuple[str, str] = INTERVAL) -> dict:
+def not_identified(record: dict) -> dict:
+    """{quantity: why} a fitted video does not identify (its result.json's "not_identified",
+    which the record carries; empty for a record without it)."""
+    gone = record.get("not_identified")
+    return gone if isinstance(gone, dict) else {}
+
+
+def coverage(records: list[dict], interval: tuple[str, str] = INTERVAL, identified: bool | None = True) -> dict:
     """Per latent (or derived quantity: `posterior_derived`) with both a truth and a posterior
     interval: the share of fitted videos whose interval [lo, hi] (closed) holds the truth, with
-    its Clopper-Pearson 95% interval."""
+    its Clopper-Pearson 95% interval. Counted over the videos that identify the quantity
+    (`identified` True: not in the record's `not_identified`), those that do not (False), or all
+    (None): where a video does not identify a quantity, its interval is the prior's and its
+    coverage says nothing about calibration."""
     lo, hi = interval
-    out: dict[str, dict] = {}
+    out: dict[str, list] = {}
     for r in fitted(records):
         truth = r.get("truth")
         post = {**(r.get("posterior") or {}), **(r.get("posterior_derived") or {})}
         if not isinstance(truth, dict):
             continue
+        gone = not_identified(r)
         for name, q in post.items():
+            if identified is not None and (name not in gone) != identified:
+                continue
             if isinstance(q, dict) and finite(q.get(lo)) and finite(q.get(hi)) and finite(truth.get(name)):
                 out.setdefault(name, []).append(q[lo] <= truth[name] <= q[hi])
     return {name: share(sum(v), len(v)) for name, v in out.items()}
 
 
+NOT_IDENTIFIED = "not identified"
+GREY = "0.6"
+
+
+def _why_not_identified(records: list[dict], name: str) -> str:
+    """The commonest reason the fitted videos give for not identifying `name`."""
+    whys: dict[str, int] = {}
+    for r in fitted(records):
+        why = not_identified(r).get(name)
+        if isinstance(why, str):
+            whys[why] = whys.get(why, 0) + 1
+    return max(whys, key=whys.get) if whys else NA
+
+
 def coverage_section(records: list[dict], fig_dir: Path) -> Section:
     title = "Interval coverage"
     paper = "none: the paper reports point estimates only."
-    cov90 = coverage(records, INTERVAL)
-    cov50 = coverage(records, INNER_INTERVAL)
-    if not cov90:
+    cov90, cov50 = coverage(records, INTERVAL), coverage(records, INNER_INTERVAL)
+    # the videos that do not identify a quantity: their intervals are the prior's (apart, and greyed)
+    gone90, gone50 = coverage(records, INTERVAL, False), coverage(records, INNER_INTERVAL, False)
+    if not cov90 and not gone90:
         return no_data(title, paper, "no fitted video has both a truth and a posterior interval of a latent")
-    names = list(cov90)
-    fig, ax = new_figure()
+    names = list(cov90) + [n for n in gone90 if n not in cov90]     # identified somewhere first, then never
+    fig, ax = new_figure(size_in=(6.4, 5.0))
     x = np.arange(len(names))
-    for offset, cov, level, color in ((-0.1, cov90, INTERVAL_LEVEL, "tab:blue"),
-                                      (0.1, cov50, INNER_LEVEL, "tab:orange")):
-        have = [j for j, n in enumerate(names) if n in cov]
-        if not have:
-            continue
-        s = [cov[names[j]] for j in have]
-        y = np.array([c["share"] for c in s])
-        err = np.array([[c["share"] - c["ci95"][0] for c in s], [c["ci95"][1] - c["share"] for c in s]])
-        ax.errorbar(x[have] + offset, y, yerr=err, fmt="o", color=color, capsize=3,
-                    label=f"{level:.0%} interval holds the truth (95% CI)")
+    for offset, cov, gone, level, color, grey in ((-0.1, cov90, gone90, INTERVAL_LEVEL, "tab:blue", "0.45"),
+                                                  (0.1, cov50, gone50, INNER_LEVEL, "tab:orange", "0.7")):
+        for data, c, label in ((cov, color, f"{level:.0%} interval holds the truth (95% CI)"),
+                               ({n: v for n, v in gone.items() if n not in cov90}, grey,
+                                f"{level:.0%} interval, {NOT_IDENTIFIED}: the prior's (95% CI)")):
+            have = [j for j, n in enumerate(names) if n in data]
+            if not have:
+                continue
+            s = [data[names[j]] for j in have]
+            y = np.array([v["share"] for v in s])
+            err = np.array([[v["share"] - v["ci95"][0] for v in s], [v["ci95"][1] - v["share"] for v in s]])
+            ax.errorbar(x[have] + offset, y, yerr=err, fmt="o", color=c, capsize=3,
+                        mfc=c if c == color else "none", label=label)   # hollow: the prior's
         ax.axhline(level, color=color, ls="--", lw=1, label=f"nominal {level:.0%}")
-    ax.set_xticks(x, names)
+    never = [n for n in names if n not in cov90]
+    ax.set_xticks(x, [f"{n}\n({NOT_IDENTIFIED})" if n in never else n for n in names])
+    for n, tick in zip(names, ax.get_xticklabels()):
+        if n in never:
+            tick.set_color(GREY)
+    if never:
+        ax.axvspan(len(names) - len(never) - 0.5, len(names) - 0.5, color="0.93", zorder=0)
     ax.set_xlim(-0.5, len(names) - 0.5)
     ax.set_ylim(-0.02, 1.02)
     ax.set(xlabel="latent", ylabel="share of fitted videos", title="Posterior interval coverage")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2)
     png = save_figure(fig, fig_dir / "coverage.png")
-    rows = [[n, fmt_share(cov90[n]), fmt_share(cov50[n]) if n in cov50 else NA] for n in names]
-    body = "\n\n".join([
-        md_table(["latent", f"{INTERVAL_LEVEL:.0%} interval ({INTERVAL[0]}-{INTERVAL[1]}) holds truth [95% CI]",
-                  f"{INNER_LEVEL:.0%} interval ({INNER_INTERVAL[0]}-{INNER_INTERVAL[1]}) holds truth [95% CI]"], rows),
+
+    def cell(cov: dict, n: str) -> str:
+        return fmt_share(cov[n]) if n in cov else NA
+
+    rows = [[n, cov90[n]["n"] if n in cov90 else 0, cell(cov90, n), cell(cov50, n),
+             gone90[n]["n"] if n in gone90 else 0] for n in names]
+    grouped: dict[str, list[str]] = {}
+    for n in names:
+        if n in gone90:
+            grouped.setdefault(_why_not_identified(records, n), []).append(f"**{n}** ({gone90[n]['n']} videos)")
+    whys = [f"- {', '.join(ns)}, {NOT_IDENTIFIED}: {why}" for why, ns in grouped.items()]
+    body = "\n\n".join(x for x in [
+        md_table(["latent", "videos identifying it",
+                  f"{INTERVAL_LEVEL:.0%} interval ({INTERVAL[0]}-{INTERVAL[1]}) holds truth [95% CI]",
+                  f"{INNER_LEVEL:.0%} interval ({INNER_INTERVAL[0]}-{INNER_INTERVAL[1]}) holds truth [95% CI]",
+                  f"videos where {NOT_IDENTIFIED}"], rows),
         f"A calibrated posterior holds the truth in {INTERVAL_LEVEL:.0%} of videos with its {INTERVAL_LEVEL:.0%} "
         "interval: a share whose 95% CI lies below the dashed line means overconfident intervals, above it too "
-        "wide ones. A quantity the videos do not identify has intervals the prior sets, and their coverage "
-        "says nothing about calibration: on the ramp, velocities fix the mass ratio (log_mass_ratio, scored on "
-        "collision videos), never the masses themselves."])
-    return Section(title, paper, png, body, {"coverage_90": cov90, "coverage_50": cov50})
+        "wide ones. Coverage is counted over the videos that identify the quantity (a record's `not_identified`, "
+        "from its result.json). A quantity the videos do not identify has intervals the prior sets, and their "
+        f"coverage says nothing about calibration: such a quantity is drawn in grey at the right, labelled "
+        f"\"{NOT_IDENTIFIED}\". On the ramp, velocities fix the mass ratio (log_mass_ratio, scored on collision "
+        "videos), never the masses themselves.",
+        "\n".join(whys) if whys else ""] if x)
+    numbers = {"coverage_90": cov90, "coverage_50": cov50, "not_identified_90": gone90, "not_identified": never}
+    return Section(title, paper, png, body, numbers)
 
 
 def timing_section(records: list[dict], fig_dir: Path) -> Section:
-    """Time per video and the workers' memory in the order their videos finished."""
+    """Time per video and the workers' memory in the order their videos finished: workers named
+    "worker 1", "worker 2", ... in the order of their first finished video (the table gives each
+    one's address and pid), memory on an axis from 0 MiB, so that a few MiB of drift look as
+    small as they are beside what a worker holds."""
     title = "Time and memory"
     paper = "none: the paper gives no timings."
     total = [get(r, "timing.total_s") for r in records]
     total = [t for t in total if finite(t)]
-    workers: dict[str, list[dict]] = {}
+    by_process: dict[str, list[dict]] = {}
     for i, r in enumerate(records):
         w = r.get("worker")
         if isinstance(w, dict) and finite(w.get("rss_mb")):
-            workers.setdefault(f"{w.get('address', '?')} pid {w.get('pid', '?')}", []).append({**w, "_i": i})
-    if not total and not workers:
+            by_process.setdefault(f"{w.get('address', '?')} pid {w.get('pid', '?')}", []).append({**w, "_i": i})
+    if not total and not by_process:
         return no_data(title, paper, "no record carries timing.total_s or worker.rss_mb")
-    timed = all(finite(w.get("finished_unix_s")) for ws in workers.values() for w in ws)
-    for ws in workers.values():
+    timed = all(finite(w.get("finished_unix_s")) for ws in by_process.values() for w in ws)
+    for ws in by_process.values():
         ws.sort(key=lambda w: w["finished_unix_s"] if timed else w["_i"])
+    first = sorted(by_process, key=lambda k: (by_process[k][0]["finished_unix_s"] if timed else by_process[k][0]["_i"], k))
+    names = {k: f"worker {j}" for j, k in enumerate(first, 1)}
+    workers = {names[k]: by_process[k] for k in first}
     growth = {k: ws[-1]["rss_mb"] - ws[0]["rss_mb"] for k, ws in workers.items()}
     fig, (ax_t, ax_m) = new_figure(2, (11.0, 4.4))
     if total:
         ax_t.hist(total, bins=min(30, max(5, len(total) // 3)), color="tab:blue")
     ax_t.set(xlabel="total time per video (s)", ylabel="videos", title="Time per video")
+    ax_t.yaxis.get_major_locator().set_params(integer=True)
     for k, ws in workers.items():
         ax_m.plot(range(1, len(ws) + 1), [w["rss_mb"] for w in ws], "o-", ms=3, label=k)
     ax_m.xaxis.get_major_locator().set_params(integer=True)
+    top = max((w["rss_mb"] for ws in workers.values() for w in ws), default=0.0)
+    ax_m.set_ylim(0, max(top * 1.1, 1.0))    # from 0: drift is read against what the worker holds
     order = "completion order" if timed else "record order (no worker.finished_unix_s in the records)"
     ax_m.set(xlabel=f"video on this worker, in {order}", ylabel="worker resident memory (MiB)",
              title="Worker memory after each video")
     if workers and len(workers) <= 12:
-        ax_m.legend(fontsize=7)
+        ax_m.legend(fontsize=7, loc="lower right")
     png = save_figure(fig, fig_dir / "timing.png")
     numbers = {"videos_timed": len(total), "total_s_median": float(np.median(total)) if total else None,
                "total_s_max": float(np.max(total)) if total else None, "total_s_sum": float(np.sum(total)),
-               "workers": len(workers), "rss_growth_mb": growth}
-    rows = [[k, len(ws), ws[0]["rss_mb"], ws[-1]["rss_mb"], max(w["rss_mb"] for w in ws), growth[k]]
-            for k, ws in workers.items()]
+               "workers": len(workers), "rss_growth_mb": growth,
+               "worker_processes": {names[k]: k for k in first}}
+    rows = [[k, numbers["worker_processes"][k], len(ws), ws[0]["rss_mb"], ws[-1]["rss_mb"],
+             max(w["rss_mb"] for w in ws), growth[k]] for k, ws in workers.items()]
     body = "\n\n".join([
         md_table(["videos timed", "median total (s)", "max total (s)", "sum of totals (s)"],
                  [[len(total), numbers["total_s_median"], numbers["total_s_max"], numbers["total_s_sum"]]]),
-        md_table(["worker", "videos", "first RSS (MiB)", "last RSS (MiB)", "max RSS (MiB)", "last - first (MiB)"],
-                 rows) if rows else "No worker memory in the records.",
+        md_table(["worker", "process", "videos", "first RSS (MiB)", "last RSS (MiB)", "max RSS (MiB)",
+                  "last - first (MiB)"], rows) if rows else "No worker memory in the records.",
         f"Left: how long a video took, tracking and inference together. Right: each worker's resident memory "
-        f"after each of its videos, in {order}; a flat line means no leak, a steady climb means one."])
+        f"after each of its videos, in {order}, on an axis from 0 MiB; a flat line means no leak, a steady climb "
+        "means one. Workers are numbered in the order their first video finished."])
     return Section(title, paper, png, body, numbers)
 
 

@@ -242,9 +242,10 @@ def test_a_full_ramp_report_has_every_section_and_its_figures(tmp_path):
     for name in re.findall(r"\(figures/([^)]+)\)", text):
         assert (tmp_path / "figures" / name).read_bytes()[:4] == b"\x89PNG"
     # memory in completion order: 100 -> 160 on w0 (pid 10), flat 200 on w1
-    growth = re.search(r"\| tcp://w0 pid 10 \| 4 \| 100 \| 160 \| 160 \| 60 \|", text)
+    # (workers named in the order of their first finished video; both first finish at 1.0 s: by address)
+    growth = re.search(r"\| worker 1 \| tcp://w0 pid 10 \| 4 \| 100 \| 160 \| 160 \| 60 \|", text)
     assert growth, text[text.index("Time and memory"):]
-    assert re.search(r"\| tcp://w1 pid 11 \| 4 \| 200 \| 200 \| 200 \| 0 \|", text)
+    assert re.search(r"\| worker 2 \| tcp://w1 pid 11 \| 4 \| 200 \| 200 \| 200 \| 0 \|", text)
 
 
 def test_the_recognition_evaluation_is_a_section_with_its_table_and_figures(tmp_path):

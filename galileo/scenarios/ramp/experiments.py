@@ -11,11 +11,13 @@ physics engine, each against ground truth:
   to rest along the ground's x axis, the MAP simulated to the video's end against the truth.
 
 `summarise` then scores the records: friction (|k1_MAP - k1_true|, the posterior median's
-error, 90% coverage), which is heavier (6.2: collision videos whose true ratio is >= 2 or
-<= 0.5, as in the easy/moderate cases), the mass ratio's Spearman correlation with the truth
-(collision videos), will it move, convergence, and what tracking made of motion: every video
-is tracked (a still one too, then skipped), and moving objects read as still (the tracker's
-`still_note`) and still ones read as moving are counted.
+error, 90% coverage), which is heavier (6.2) and will it move (6.3) counted exactly as
+report.md counts them (`report.heavier`, `report.will_it_move`: the same videos, the same rule,
+"right" of "scored" with the 95% interval report.md prints), the mass ratio's Spearman
+correlation with the truth (collision videos, MAP ratio: report.md's "MAP" row), convergence,
+and what tracking made of motion: every video is tracked (a still one too, then skipped), and
+moving objects read as still (the tracker's `still_note`) and still ones read as moving are
+counted.
 """
 from __future__ import annotations
 
@@ -107,6 +109,7 @@ def run_video(folder: Path, config: RunConfig, executor=None) -> dict:
     diag = doc["diagnostics"]
     derived = doc["posterior_derived"]
     rec.update({"status": "fitted", "map": res.map, "map_loglik": res.map_loglik, "mass_ratio": res.mass_ratio(),
+                "not_identified": dict(doc["not_identified"]),
                 "posterior": {k: {q: v[q] for q in ("q05", "q25", "q50", "q75", "q95")}
                               for k, v in doc["posterior"].items()},
                 "posterior_derived": {k: {q: v[q] for q in ("q05", "q25", "q50", "q75", "q95") if q in v}
@@ -147,8 +150,18 @@ def _spearman(pairs: list[tuple[float, float]]) -> float | None:
     return float(spearmanr(*zip(*pairs)).statistic)
 
 
+def _scored(acc: dict, acc_map: dict | None = None) -> dict:
+    """A report share ({k, n, share, ci95}) as the summary states it: right of scored."""
+    out = {"scored": acc["n"], "right": acc["k"], "accuracy": acc["share"], "ci95": acc["ci95"]}
+    if acc_map is not None:
+        out |= {"right_map": acc_map["k"], "accuracy_map": acc_map["share"]}
+    return out
+
+
 def summarise(records: list[dict]) -> dict:
     """The paper's numbers over the records (see the module)."""
+    from .report import HEAVIER_RULE, MOVE_RULE, heavier, will_it_move
+
     fitted = [r for r in records if r.get("status") == "fitted"]
     k_err = [abs(r["map"]["k1"] - r["truth"]["k1"]) for r in fitted]
     k_err_med = [abs(r["posterior"]["k1"]["q50"] - r["truth"]["k1"]) for r in fitted]
@@ -156,11 +169,8 @@ def summarise(records: list[dict]) -> dict:
     lr = [r for r in fitted if "log_mass_ratio" in r["truth"] and "log_mass_ratio" in r.get("posterior_derived", {})]
     lr_cover = [r["posterior_derived"]["log_mass_ratio"]["q05"] <= r["truth"]["log_mass_ratio"]
                 <= r["posterior_derived"]["log_mass_ratio"]["q95"] for r in lr]
-    heavy = [r for r in fitted if r.get("collision") and r.get("mass_ratio")
-             and (r["truth"]["m1_kg"] / r["truth"]["m2_kg"] >= 2 or r["truth"]["m1_kg"] / r["truth"]["m2_kg"] <= 0.5)]
-    heavy_ok = [(r["mass_ratio"] > 1) == (r["truth"]["m1_kg"] > r["truth"]["m2_kg"]) for r in heavy]
-    wim = [r["will_it_move"] for r in fitted if r.get("will_it_move")]
-    wim_ok = [w["predicted_moves"] == w["true_moves"] for w in wim]
+    heavy = heavier(records)["overall"]
+    move = will_it_move(records)
     out = [r["outcome"] for r in fitted if r.get("outcome") and r.get("collision")]
     ratio = [(r["mass_ratio"], r["truth"]["m1_kg"] / r["truth"]["m2_kg"]) for r in fitted
              if r.get("collision") and r.get("mass_ratio")]
@@ -173,13 +183,11 @@ def summarise(records: list[dict]) -> dict:
             "k1_coverage_90": float(np.mean(k_cover)) if k_cover else None,
             "log_mass_ratio_coverage_90": float(np.mean(lr_cover)) if lr_cover else None,
             "converged": int(sum(bool(r.get("converged")) for r in fitted)),
-            "which_is_heavier": {"scored": len(heavy), "right": int(sum(heavy_ok)),
-                                 "accuracy": float(np.mean(heavy_ok)) if heavy_ok else None},
+            "which_is_heavier": {**_scored(heavy["accuracy"], heavy["accuracy_map"]), "rule": HEAVIER_RULE},
             "mass_ratio_spearman": _spearman(ratio),
             "moving_read_as_still": sum(r["moves"] and not r["tracked_moves"] for r in tracked),
             "still_read_as_moving": sum(not r["moves"] and r["tracked_moves"] for r in tracked),
-            "will_it_move": {"scored": len(wim), "right": int(sum(wim_ok)),
-                             "accuracy": float(np.mean(wim_ok)) if wim_ok else None},
+            "will_it_move": {**_scored(move["accuracy"]), "rule": MOVE_RULE},
             "outcome_median_abs_error_m": (float(np.median([abs(o["predicted_final_x_m"] - o["true_final_x_m"])
                                                             for o in out])) if out else None),
             "seconds_per_video": (float(np.mean([r["timing"]["total_s"] for r in fitted if "total_s" in r.get("timing", {})]))

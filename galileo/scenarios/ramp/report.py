@@ -19,11 +19,18 @@ from pathlib import Path
 import numpy as np
 
 from ...report import (NA, Section, correlation, diagonal, finite, fitted, fmt, fmt_share, get, interval_points,
-                       md_table, new_figure, no_data, plain_log_axes, save_figure, share)
+                       md_table, new_figure, no_data, paper_bars, plain_log_axes, save_figure, share)
 
 # which is heavier: bins of the true ratio heavier/lighter (edges; the last bin is open)
 HEAVIER_RATIO_EDGES = (1.0, 2.0, 4.0)
 CHANCE = 0.5
+PAPER_SPEARMAN = 0.52        # Table 1: Galileo's mass ratio against the truth
+PAPER_MOVE_PEARSON = 0.20    # Table 1: Galileo's will-it-move answers against the truth
+# how report.md and the summary (report.json, the terminal) count, in the same words
+HEAVIER_RULE = ("collision videos with two different true masses; right when the posterior median of "
+                "log(m1/m2) has the true sign (right_map: when the MAP ratio does)")
+MOVE_RULE = ("20 degree videos whose object has a 10 degree video; right when the 20 degree MAP simulated on "
+             "the 10 degree ramp moves exactly when the 10 degree video's object does")
 PAPER = {
     "mass": "Table 1 (section 6.2): Spearman's coefficient between Galileo's estimated mass ratio and the truth "
             "is **0.52** (human vs truth 0.68, human vs Galileo 0.51).",
@@ -102,6 +109,24 @@ def heavier(records: list[dict]) -> dict:
     return {"overall": pack(total), "bins": {k: pack(d) for k, d in bins.items()}}
 
 
+def _scored_text(what: str, acc: dict) -> str:
+    """"right k of n scored, accuracy a, 95% CI [lo, hi]": how report.md states a score, in the
+    words of the summary's keys (scored, right, accuracy, ci95)."""
+    if not acc["n"]:
+        return f"{what}: right 0 of 0 scored, accuracy {NA}"
+    lo, hi = acc["ci95"]
+    return f"{what}: right {acc['k']} of {acc['n']} scored, accuracy {acc['share']:.2f}, 95% CI [{lo:.2f}, {hi:.2f}]"
+
+
+def heavier_sentence(n: dict) -> str:
+    """report.md's statement of the overall which-is-heavier score: the summary's
+    `which_is_heavier` (report.json, `galileo experiment`'s terminal summary) in words."""
+    acc_map = n["overall"]["accuracy_map"]
+    return (f"**{_scored_text('Which is heavier', n['overall']['accuracy'])}** (MAP ratio: right "
+            f"{acc_map['k']} of {acc_map['n']}). Scored: {HEAVIER_RULE}. The summary's `which_is_heavier` "
+            "(report.json, the terminal) gives these numbers.")
+
+
 def will_it_move(records: list[dict]) -> dict:
     """The 20 degree fits' predictions on the 10 degree ramp against the 10 degree videos' truth:
     accuracy, the confusion counts, Pearson of the 0/1 answers (phi), and how often each says "moves"."""
@@ -159,7 +184,7 @@ def _mass_ratio_section(records: list[dict], fig_dir: Path) -> Section:
     col = _collisions(records)
     if not col:
         return no_data(title, PAPER["mass"], "no fitted video in which the two objects collided")
-    fig, ax = new_figure()
+    fig, (ax, ax_p) = new_figure(2, (8.8, 4.6), width_ratios=[4.0, 1.4])
     post = [r for r in col if all(finite(get(r, f"posterior_derived.log_mass_ratio.{k}")) for k in ("q05", "q50", "q95"))]
     if post:
         t = np.array([math.exp(_true_log_ratio(r)) for r in post])
@@ -176,14 +201,18 @@ def _mass_ratio_section(records: list[dict], fig_dir: Path) -> Section:
     ax.set(xlabel="true m1/m2 (dimensionless)", ylabel="inferred m1/m2 (dimensionless)",
            title="Mass ratio, collision videos")
     ax.legend(fontsize=8)
+    paper_bars(ax_p, [("posterior\nmedian", n["posterior_median"]["spearman_rho"], PAPER_SPEARMAN, None),
+                      ("MAP", n["map"]["spearman_rho"], PAPER_SPEARMAN, None)],
+               "Spearman rho, inferred vs true ratio", "Spearman vs paper")
     png = save_figure(fig, fig_dir / "ramp_mass_ratio.png")
-    rows = [[label, c["n"], c["spearman_rho"], c["pearson_r"], "0.52"]
+    rows = [[label, c["n"], c["spearman_rho"], c["pearson_r"], f"{PAPER_SPEARMAN:.2f}"]
             for label, c in (("posterior median", n["posterior_median"]), ("MAP", n["map"]))]
     body = "\n\n".join([
         md_table(["estimate", "videos", "Spearman rho", "Pearson r (log ratios)", "paper's Spearman"], rows),
         f"{n['collision_videos']} fitted videos in which the objects collided (only those say anything about the "
         "masses). On the dashed diagonal the inferred ratio equals the true one; a point in the upper-right or "
-        "lower-left quadrant (split at 1) names the heavier object rightly. Bars span the 90% posterior interval."])
+        "lower-left quadrant (split at 1) names the heavier object rightly. Bars span the 90% posterior interval. "
+        f"The right panel sets the Spearman coefficients beside the paper's ({PAPER_SPEARMAN:.2f}, dashed)."])
     return Section(title, PAPER["mass"], png, body, n)
 
 
@@ -239,10 +268,10 @@ def _heavier_section(records: list[dict], fig_dir: Path) -> Section:
     png = save_figure(fig, fig_dir / "ramp_which_is_heavier.png")
     rows = [[k, g["accuracy"]["n"], fmt_share(g["accuracy"]), fmt_share(g["accuracy_map"])] for k, g in groups.items()]
     body = "\n\n".join([
-        md_table(["true ratio", "videos", "accuracy, posterior median [95% CI]", "accuracy, MAP [95% CI]"], rows),
-        "One pair per collision video (its two objects); right when the inferred log ratio has the true sign. "
-        "Close masses (ratio near 1) are the hard cases: accuracy should fall towards chance (dashed) as the "
-        "ratio nears 1."])
+        heavier_sentence(n),
+        md_table(["true ratio", "scored", "right, posterior median [95% CI]", "right, MAP [95% CI]"], rows),
+        "One pair per collision video (its two objects). Close masses (ratio near 1) are the hard cases: accuracy "
+        "should fall towards chance (dashed) as the ratio nears 1."])
     return Section(title, PAPER["heavier"], png, body, n)
 
 
@@ -254,7 +283,7 @@ def _move_section(records: list[dict], fig_dir: Path) -> Section:
                        "degree video.", n)
     c = n["confusion"]
     m = np.array([[c["moves|moves"], c["moves|stays"]], [c["stays|moves"], c["stays|stays"]]])
-    fig, ax = new_figure(size_in=(4.8, 4.2))
+    fig, (ax, ax_p) = new_figure(2, (8.0, 4.2), width_ratios=[3.0, 2.0])
     ax.imshow(m, cmap="Blues", vmin=0)
     for (i, j), v in np.ndenumerate(m):
         ax.text(j, i, str(v), ha="center", va="center", fontsize=14, color="white" if v > m.max() / 2 else "black")
@@ -262,15 +291,21 @@ def _move_section(records: list[dict], fig_dir: Path) -> Section:
     ax.set_yticks([0, 1], ["moves", "stays"])
     ax.set(xlabel="truth (10 degree video)", ylabel="predicted (20 degree fit on 10 degrees)",
            title=f"Will it move: accuracy {fmt(n['accuracy']['share'], 2)}")
+    paper_bars(ax_p, [("accuracy", n["accuracy"]["share"], CHANCE, f"{CHANCE:g} (chance)"),
+                      ("phi\n(Pearson r)", n["phi"], PAPER_MOVE_PEARSON, f"{PAPER_MOVE_PEARSON:.2f}")],
+               "share right / correlation with the truth", "Ours vs paper")
     png = save_figure(fig, fig_dir / "ramp_will_it_move.png")
     rows = [["accuracy [95% CI]", fmt_share(n["accuracy"]), "at chance"],
-            ["Pearson r of 0/1 answers (phi)", fmt(n["phi"]), "0.20"],
+            ["Pearson r of 0/1 answers (phi)", fmt(n["phi"]), f"{PAPER_MOVE_PEARSON:.2f}"],
             ["share predicted to move", fmt_share(n["predicted_moves"]), "biased towards 'moves'"],
             ["share that truly move", fmt_share(n["true_moves"]), NA]]
     body = "\n\n".join([
+        f"**{_scored_text('Will it move', n['accuracy'])}.** Scored: {MOVE_RULE}. The summary's `will_it_move` "
+        "(report.json, the terminal) gives these numbers.",
         md_table(["measure", "ours", "paper (Galileo)"], rows),
         "Rows are the prediction, columns the truth: the diagonal is right. More predicted 'moves' than true "
-        "'moves' is the paper's bias; phi near 0 is chance, 1 perfect."])
+        "'moves' is the paper's bias; phi near 0 is chance, 1 perfect. The right panel sets accuracy and phi "
+        "beside the paper's (dashed: at chance, and its Pearson coefficient)."])
     return Section(title, PAPER["move"], png, body, n)
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ...report import (NA, Section, diagonal, finite, fmt, get, interval_points, md_table, new_figure, no_data,
-                       plain_log_axes, save_figure)
+                       paper_bars, plain_log_axes, save_figure)
 from .experiments import SEED, chains_agree, summarise, which_is_heavier
 
 CHANCE = 0.5
@@ -35,7 +35,7 @@ def _mass_section(records: list[dict], summary: dict, fig_dir: Path) -> Section:
     pred = [r for r in records if finite(r.get("mass_kg"))]
     if not pred:
         return Section(title, PAPER["mass"], None, "No data: no video has a predicted mass.", mc)
-    fig, ax = new_figure()
+    fig, (ax, ax_p) = new_figure(2, (8.8, 4.6), width_ratios=[4.0, 1.4])
     for conv, style, label in ((True, dict(fmt="o"), "chains agree"),
                                (False, dict(fmt="o", mfc="none"), "chains disagree")):
         rs = [r for r in pred if chains_agree(r)[0] == conv]
@@ -49,8 +49,11 @@ def _mass_section(records: list[dict], summary: dict, fig_dir: Path) -> Section:
     diagonal(ax, "predicted = true")
     ax.set(xlabel="true mass (kg)", ylabel="predicted mass (kg)", title="Mass: median over chains")
     ax.legend(fontsize=8)
-    png = save_figure(fig, fig_dir / "splash_mass.png")
     obj = mc["objects"]
+    paper_bars(ax_p, [("objects,\nchains\nagree", obj["pearson_r"], SEED["pearson_r"], f"{SEED['pearson_r']:.2f}"),
+                      ("videos,\nchains\nagree", mc["videos"]["pearson_r"], None, None)],
+               "Pearson r, predicted vs true mass", "Pearson vs paper")
+    png = save_figure(fig, fig_dir / "splash_mass.png")
     seed = f"{SEED['pearson_r']} ({SEED['converged_objects']} of {SEED['objects']} objects)"
     rows = [[f"objects whose chains agree ({obj['converged_objects']} of {obj['objects']})", obj["n"],
              obj["pearson_r"], obj["spearman_rho"], seed],
@@ -68,7 +71,9 @@ def _mass_section(records: list[dict], summary: dict, fig_dir: Path) -> Section:
         f"{summary['predicted']}.",
         "A predicted mass is the posterior median of density x volume (the bottom-up volume times the inferred "
         "volume factor) over all chains' kept draws; bars span its interquartile range. On the dashed diagonal the "
-        "prediction is exact; hollow points are videos whose chains disagree, left out of the seed's correlation."])
+        "prediction is exact; hollow points are videos whose chains disagree, left out of the seed's correlation. "
+        f"The right panel sets the Pearson coefficients beside the seed's ({SEED['pearson_r']:.2f}, dashed, over "
+        "the objects whose chains agree: the seed's own measure)."])
     return Section(title, PAPER["mass"], png, body, mc)
 
 
