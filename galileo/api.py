@@ -379,7 +379,8 @@ class Result:
                 lines.append(f"posterior {k}: {v['q50']:.3g} (90%: {v['q05']:.3g}-{v['q95']:.3g})")
         diag = self.diagnostics
         lines.append(f"{'converged' if self.converged else 'NOT converged'} after {diag['sweeps']} sweeps"
-                     + ("" if self.converged else f" ({'; '.join(self.why_not[:2])})"))
+                     + ("" if self.converged else f" ({'; '.join(self.why_not[:2])}): the MAP may still be good, but "
+                        "the intervals are not to be trusted; run on until converged: infer(..., until_rhat=1.01)"))
         return "\n".join(lines)
 
     def __repr__(self) -> str:
