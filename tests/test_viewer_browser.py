@@ -348,8 +348,10 @@ def test_a_prior_edit_that_leaves_every_chain_out_says_so_and_restarts_them_insi
         v.refresh()
         assert all(np.asarray(p.data[1]).sum() == 0 for n, p in v.hist_plots.items() if n == "k1")
         restart.click()
-        assert wait_until(lambda: all(0.3 <= ctrl.position(c)["k1"] <= 0.6 for c in ctrl.chain_ids()), 30)
-        assert [e["detail"]["chain"] for e in ctrl.events if e["kind"] == "set_chain"] == ctrl.chain_ids()
+        # (a chain's position is set just before its set_chain event is recorded: wait for both)
+        assert wait_until(lambda: all(0.3 <= ctrl.position(c)["k1"] <= 0.6 for c in ctrl.chain_ids())
+                          and [e["detail"]["chain"] for e in ctrl.events if e["kind"] == "set_chain"]
+                          == ctrl.chain_ids(), 30), [e for e in ctrl.events if e["kind"] == "set_chain"]
         restart.wait_for(state="hidden", timeout=10000)
         ctrl.resume()              # (held at their target of 12 sweeps)
         ctrl.run_sweeps(2)
