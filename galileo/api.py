@@ -220,9 +220,7 @@ class Result:
     @classmethod
     def of(cls, inference) -> "Result":
         """The Result of a `galileo.runner.infer` run."""
-        record = {"names": np.array(inference.names), "samples": inference.samples, "logliks": inference.logliks,
-                  "starts": inference.starts, **{f"proposal_{k}": v for k, v in inference.proposals.items()}}
-        return cls(inference.to_json(), record, inference.scene, inference.tracks, inference)
+        return cls(inference.to_json(), inference.record(), inference.scene, inference.tracks, inference)
 
     # what result.json says
     @property
@@ -349,19 +347,9 @@ class Result:
     def save(self, path: str | Path) -> Path:
         """result.json at `path` and the sample record beside it (<stem>.samples.npz), as
         `galileo infer --out` writes them (atomically); the record's path."""
-        if self.inference is not None:
-            return self.inference.save(path, self.doc)
-        import io
+        from .results import write_result
 
-        from .jsonio import atomic_write_bytes, write_json
-
-        path = Path(path)
-        npz = path.with_name(path.stem + ".samples.npz")
-        buf = io.BytesIO()
-        np.savez_compressed(buf, **self.record)
-        atomic_write_bytes(npz, buf.getvalue())
-        write_json(path, {**self.doc, "samples_file": npz.name})
-        return npz
+        return write_result(path, self.doc, self.record)
 
     def summary(self) -> str:
         """What the video identifies, its 90% intervals and whether the chains converged (what

@@ -59,20 +59,21 @@ def _move_names(names: Sequence[str], codes: dict) -> list[tuple[str, list[int]]
     return out
 
 
-def _sample_stats(names, logliks, proposals, codes, sweeps: slice) -> dict:
+def _sample_stats(names, logliks, proposals, codes) -> tuple[dict, list[str]]:
+    """sample_stats' variables over every sweep (chains, sweeps[, move]), and the moves' names."""
     chains, n = logliks.shape
     moves = _move_names(names, codes)
-    acc = np.empty((chains, n)), np.empty((chains, n)), np.empty((chains, n)), np.empty((chains, n, len(moves)))
-    rate, count, early, by_move = acc
+    rate, count, early = np.empty((chains, n)), np.empty((chains, n), int), np.empty((chains, n))
+    by_move = np.empty((chains, n, len(moves)))
     for c in range(chains):
-        site = proposals["site"][c]
-        rate[c] = per_sweep(site, proposals["accepted"][c], n)
+        site, accepted = proposals["site"][c], proposals["accepted"][c]
+        rate[c] = per_sweep(site, accepted, n)
         early[c] = per_sweep(site, proposals["early_stop"][c], n)
         count[c] = np.bincount(np.clip(sweep_of_proposals(site), 0, None), minlength=n)[:n]
         for k, (_, code) in enumerate(moves):
-            by_move[c, :, k] = per_sweep(site, proposals["accepted"][c], n, np.isin(site, code))
-    return {"lp": logliks[:, sweeps], "acceptance_rate": rate[:, sweeps], "n_proposals": count[:, sweeps].astype(int),
-            "early_stopped": early[:, sweeps], "move_acceptance": by_move[:, sweeps]}, [m for m, _ in moves]
+            by_move[c, :, k] = per_sweep(site, accepted, n, np.isin(site, code))
+    return ({"lp": logliks, "acceptance_rate": rate, "n_proposals": count, "early_stopped": early,
+             "move_acceptance": by_move}, [m for m, _ in moves])
 
 
 def _observed(tracks) -> tuple[dict, dict, dict]:
@@ -109,13 +110,13 @@ def to_datatree(*, names: Sequence[str], units: dict, samples: np.ndarray, logli
     data = {"posterior": {n: samples[:, kept, j] for j, n in enumerate(names)}}
     for k, v in (derived or {}).items():
         data["posterior"][k] = np.asarray(v, float)
-    stats, move_names = _sample_stats(names, logliks, proposals, codes or {}, kept)
-    data["sample_stats"] = stats
+    stats, move_names = _sample_stats(names, logliks, proposals, codes or {})
+    data["sample_stats"] = {k: v[:, kept] for k, v in stats.items()}
     dims = {"move_acceptance": ["move"]}
     coords = {"move": move_names}
     if burn_in > 0:
         data["warmup_posterior"] = {n: samples[:, warm, j] for j, n in enumerate(names)}
-        data["warmup_sample_stats"] = _sample_stats(names, logliks, proposals, codes or {}, warm)[0]
+        data["warmup_sample_stats"] = {k: v[:, warm] for k, v in stats.items()}
     if tracks is not None:
         obs, obs_dims, obs_coords = _observed(tracks)
         data["observed_data"] = obs

@@ -258,19 +258,27 @@ class InferenceResult:
         """One line for users when the posterior comes from chains that have not converged."""
         return warning_of(self.convergence())
 
+    def record(self) -> dict[str, np.ndarray]:
+        """The full sample record, as <stem>.samples.npz holds it (the module docstring)."""
+        return {"names": np.array(self.names), "samples": self.samples, "logliks": self.logliks,
+                "starts": self.starts, **{f"proposal_{k}": v for k, v in self.proposals.items()}}
+
     def save(self, result_path: str | Path, doc: dict | None = None) -> Path:
         """result.json and, beside it, the full record as <stem>.samples.npz (no pickle);
         `doc`: `to_json()` if the caller has it already."""
-        result_path = Path(result_path)
-        npz_path = result_path.with_name(result_path.stem + ".samples.npz")
-        buf = io.BytesIO()
-        np.savez_compressed(buf, names=np.array(self.names), samples=self.samples, logliks=self.logliks,
-                            starts=self.starts, **{f"proposal_{k}": v for k, v in self.proposals.items()})
-        atomic_write_bytes(npz_path, buf.getvalue())
-        d = dict(self.to_json() if doc is None else doc)
-        d["samples_file"] = npz_path.name
-        write_json(result_path, d)
-        return npz_path
+        return write_result(result_path, self.to_json() if doc is None else doc, self.record())
+
+
+def write_result(result_path: str | Path, doc: dict, record: dict) -> Path:
+    """Write result.json (`doc`, naming its record) and the record beside it as
+    <stem>.samples.npz, each atomically; the record's path."""
+    result_path = Path(result_path)
+    npz_path = result_path.with_name(result_path.stem + ".samples.npz")
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **record)
+    atomic_write_bytes(npz_path, buf.getvalue())
+    write_json(result_path, {**doc, "samples_file": npz_path.name})
+    return npz_path
 
 
 def sweeps_to_map(logliks: np.ndarray, within_nats: float = 1.0, reference: float | None = None) -> dict:
