@@ -129,7 +129,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="default: widths adapted in a warm-up (the first half of --sweeps) plus the scenario's exact "
                         "joint moves; paper: Galileo section 3.2 exactly; fitted: default plus, once every chain is "
                         "past the warm-up, an exact independence move fitted to their warm-ups (galileo infer "
-                        "--moves fitted) (a new session; default: default)")
+                        "--moves fitted) (a new session; default: the scenario's move set for running until "
+                        "converged: ramp fitted, the others default)")
     p.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
                    help="after --sweeps, run on until every latent's R-hat <= R and its bulk and tail ESS >= "
                         "--min-ess (e.g. 1.01), or until --max-sweeps; then pause")
@@ -338,14 +339,17 @@ def new_session(args, video_path, scene_path, name: str, model=None, say=print):
 def start_chains(args, session: Path, scene, tracks, init=None, lock=None):
     """The new session's controller, holding its `lock` (its worker processes are forked here:
     call it before any server thread or socket exists)."""
+    from galileo import api, registry
     from galileo.errors import GalileoError
     from galileo.results import MIN_ESS
     from ui.controller import Controller
 
     min_ess = MIN_ESS if args.min_ess is None else args.min_ess
+    # the app's chains can always be run until converged: by default the scenario's move set for it
+    moves = args.moves or api.moves_for(registry.of(scene), None, 1.01, args.sweeps)
     try:
         return Controller(scene, tracks, chains=args.chains, seed=args.seed, workers=args.workers,
-                          session_dir=session, init=init, moves=args.moves or "default", sweeps=args.sweeps,
+                          session_dir=session, init=init, moves=moves, sweeps=args.sweeps,
                           until_rhat=args.until_rhat, min_ess=min_ess, max_sweeps=args.max_sweeps,
                           session_lock=lock)
     except ValueError as e:

@@ -74,14 +74,32 @@ def track(video: str | Path, scene, *, progress: bool = True, debug_video: str |
 
 # -- inference -------------------------------------------------------------------------------------
 
+def moves_for(scenario, moves: str | None, until_rhat: float | None, sweeps: int | None = None,
+              warmup: int | None = None) -> str:
+    """The move set a run uses: `moves` if given; else, running until converged (`until_rhat`),
+    the scenario's `converge_moves` (the ramp's "fitted"), and "default" for a fixed number of
+    sweeps (the paper's protocol's budget, whose figures BENCHMARKS.md reports). "fitted" needs a
+    warm-up to fit to: where `sweeps` and `warmup` leave too short a one, "default"."""
+    from .runner import FITTED_MIN_WARMUP, RunConfig
+
+    if moves is not None:
+        return moves
+    if until_rhat is None:
+        return "default"
+    if scenario.converge_moves == "fitted" and sweeps is not None and RunConfig(
+            sweeps=sweeps, until_rhat=until_rhat, warmup=warmup).warmup_sweeps() < FITTED_MIN_WARMUP:
+        return "default"
+    return scenario.converge_moves
+
+
 def run_config(scenario, *, chains: int | None = None, sweeps: int | None = None, seed: int = 0,
-               workers: int | None = None, sigma: float | None = None, moves: str = "default",
+               workers: int | None = None, sigma: float | None = None, moves: str | None = None,
                warmup: int | None = None, until_rhat: float | None = None, min_ess: float | None = None,
                max_sweeps: int | None = None, max_seconds: float | None = None, priors: dict | None = None,
                narrow: float | None = None, broad: float | None = None, broad_every: int | None = None,
                speedups: bool = True):
     """The `galileo.runner.RunConfig` of these settings, the scenario's protocol filling what is
-    not given (the ramp's 16 x 75, the splash's 50 chains), checked (GalileoError)."""
+    not given (the ramp's 16 x 75, the splash's 50 chains; `moves`: `moves_for`), checked (GalileoError)."""
     from .results import MIN_ESS
     from .runner import RunConfig
 
@@ -91,10 +109,12 @@ def run_config(scenario, *, chains: int | None = None, sweeps: int | None = None
             raise GalileoError(f"{what} is a budget of until_rhat (run until converged); without it, give sweeps")
     if priors is not None and not isinstance(priors, dict):
         raise GalileoError(f"priors: expected a dict merged into the scene's priors, got {priors!r}")
+    sweeps = protocol["sweeps"] if sweeps is None else sweeps
     cfg = RunConfig(chains=protocol["chains"] if chains is None else chains,
-                    sweeps=protocol["sweeps"] if sweeps is None else sweeps, seed=seed, workers=workers, noise=sigma,
-                    speedups=speedups, narrow=narrow, broad=broad, broad_every=broad_every, moves=moves, warmup=warmup,
-                    until_rhat=until_rhat, min_ess=float(MIN_ESS if min_ess is None else min_ess), max_sweeps=max_sweeps,
+                    sweeps=sweeps, seed=seed, workers=workers, noise=sigma,
+                    speedups=speedups, narrow=narrow, broad=broad, broad_every=broad_every,
+                    moves=moves_for(scenario, moves, until_rhat, sweeps, warmup), warmup=warmup, until_rhat=until_rhat,
+                    min_ess=float(MIN_ESS if min_ess is None else min_ess), max_sweeps=max_sweeps,
                     max_seconds=max_seconds, priors=priors)
     cfg.check()
     return cfg
@@ -125,7 +145,7 @@ def checked_settings(cfg, scenario, scene):
 
 def infer(scene, observed, *, tracks=None, share: Sequence[str] = (), fix: dict | None = None, chains: int | None = None,
           sweeps: int | None = None, seed: int = 0, workers: int | None = None, sigma: float | None = None,
-          moves: str = "default", warmup: int | None = None, until_rhat: float | None = None,
+          moves: str | None = None, warmup: int | None = None, until_rhat: float | None = None,
           min_ess: float | None = None, max_sweeps: int | None = None, max_seconds: float | None = None,
           priors: dict | None = None, init: str = "prior", model: str | Path | None = None,
           recognition_move: int | None = None, narrow: float | None = None, broad: float | None = None,
@@ -137,8 +157,8 @@ def infer(scene, observed, *, tracks=None, share: Sequence[str] = (), fix: dict 
     only by `init` recognition. Several videos as one problem: lists of scenes and of videos/tracks, with `share` (latents
     with one value for all) and `fix` ({name: value}: NAME in every video, NAME@2 in video 2 only).
     The other settings are `galileo infer`'s flags (`chains`, `sweeps`: the scenario's protocol by
-    default; `moves`: default|paper|fitted; `until_rhat` with its budgets `max_sweeps`,
-    `max_seconds`; `sigma` in the scenario's noise unit; `init`: prior|recognition)."""
+    default; `moves`: default|paper|fitted, else `moves_for`'s; `until_rhat` with its budgets
+    `max_sweeps`, `max_seconds`; `sigma` in the scenario's noise unit; `init`: prior|recognition)."""
     from . import registry
     from .runner import infer as run
 
@@ -436,7 +456,7 @@ def predict(result: Result | str | Path, **answers: Any) -> dict:
 
 
 def experiment(dataset: str | Path, out: str | Path, *, client=None, workers: int | None = None,
-               chains: int | None = None, sweeps: int | None = None, seed: int = 0, moves: str = "default",
+               chains: int | None = None, sweeps: int | None = None, seed: int = 0, moves: str | None = None,
                priors: dict | None = None, until_rhat: float | None = None, min_ess: float | None = None,
                max_sweeps: int | None = None, max_seconds: float | None = None, granularity: str = "videos",
                recognition: str | Path | None = None, progress: bool = True) -> dict:
@@ -465,7 +485,7 @@ def experiment(dataset: str | Path, out: str | Path, *, client=None, workers: in
 
 def calibrate(scenario: str, out: str | Path, *, n: int | None = None, videos: str | Path | None = None,
               draws: int | None = None, scenes: str = "default", seed: int = 0, chains: int | None = None,
-              sweeps: int | None = None, workers: int | None = None, moves: str = "default",
+              sweeps: int | None = None, workers: int | None = None, moves: str | None = None,
               until_rhat: float | None = None, max_sweeps: int | None = None, progress: bool = True) -> dict:
     """Simulation-based calibration (`galileo calibrate`): `n` simulations from the prior, each
     inferred, their ranks and interval coverage (OUT/sbc.json and figures); or, with `videos` (a
@@ -476,7 +496,7 @@ def calibrate(scenario: str, out: str | Path, *, n: int | None = None, videos: s
     chains = DEFAULT_CHAINS if chains is None else chains
     sweeps = DEFAULT_SWEEPS if sweeps is None else sweeps
     draws = DEFAULT_DRAWS if draws is None else draws
-    registry.get(scenario)   # an unknown scenario fails here, with the known ones named
+    moves = moves_for(registry.get(scenario), moves, until_rhat, sweeps)   # an unknown scenario fails here, named
     for what, v, lo in (("chains", chains, 1), ("sweeps", sweeps, 1), ("draws", draws, 1), ("workers", workers, 1),
                         ("seed", seed, 0), ("n", n, 1)):
         if v is not None and v < lo:

@@ -435,7 +435,6 @@ def cmd_infer(args: argparse.Namespace) -> int:
 def infer_folder(args: argparse.Namespace) -> int:
     """galileo infer FOLDER: every video of the folder on Dask (galileo.batch.infer_folder)."""
     from . import api, batch, registry
-    from .runner import RunConfig
 
     for flag, given in (("--tracks", args.tracks), ("--init recognition", args.init == "recognition"),
                         ("--model", args.model), ("--recognition-move", args.recognition_move)):
@@ -447,14 +446,11 @@ def infer_folder(args: argparse.Namespace) -> int:
     check_out_dir(args.out, "results folder")
     videos = batch.folder_videos(args.video, args.scene)
     first = registry.load_scene(videos[0][2])
-    protocol = registry.of(first).protocol
-    cfg = RunConfig(chains=protocol["chains"] if args.chains is None else args.chains,
-                    sweeps=protocol["sweeps"] if args.sweeps is None else args.sweeps, seed=args.seed, workers=1,
-                    noise=args.sigma, speedups=not args.no_speedups, narrow=args.narrow, broad=args.broad,
-                    broad_every=args.broad_every, moves=args.moves, warmup=args.warmup, until_rhat=args.until_rhat,
-                    min_ess=args.min_ess, max_sweeps=args.max_sweeps, max_seconds=args.max_seconds,
-                    priors=priors_arg(args.priors))
-    cfg.check()
+    cfg = api.run_config(registry.of(first), chains=args.chains, sweeps=args.sweeps, seed=args.seed, workers=1,
+                         sigma=args.sigma, speedups=not args.no_speedups, narrow=args.narrow, broad=args.broad,
+                         broad_every=args.broad_every, moves=args.moves, warmup=args.warmup,
+                         until_rhat=args.until_rhat, min_ess=args.min_ess, max_sweeps=args.max_sweeps,
+                         max_seconds=args.max_seconds, priors=priors_arg(args.priors))
     api.checked_settings(cfg, registry.of(first), first)
     log = (lambda m: print(m, file=sys.stderr)) if not args.quiet else None
     with batch.open_client(args.workers, args.scheduler, slurm_arg(args.slurm), log=log) as client:
@@ -719,17 +715,18 @@ def cmd_scene(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from . import registry
-    from .calibrate import coverage_on_videos, sbc
+    from . import api, registry
+    from .calibrate import DEFAULT_SWEEPS, coverage_on_videos, sbc
 
-    registry.get(args.scenario)   # an unknown scenario fails here, with the known ones named
+    moves = api.moves_for(registry.get(args.scenario), args.moves, args.until_rhat,
+                          DEFAULT_SWEEPS if args.sweeps is None else args.sweeps)   # an unknown scenario fails
     for what, v, lo in (("--chains", args.chains, 1), ("--sweeps", args.sweeps, 1), ("--draws", args.draws, 1),
                         ("--workers", args.workers, 1), ("--seed", args.seed, 0)):
         if v is not None and v < lo:
             raise GalileoError(f"{what} must be at least {lo}, got {v}")
     if args.max_sweeps is not None and args.until_rhat is None:
         raise GalileoError("--max-sweeps is the budget of --until-rhat; without it, use --sweeps")
-    common = dict(seed=args.seed, chains=args.chains, sweeps=args.sweeps, workers=args.workers, moves=args.moves,
+    common = dict(seed=args.seed, chains=args.chains, sweeps=args.sweeps, workers=args.workers, moves=moves,
                   until_rhat=args.until_rhat, max_sweeps=args.max_sweeps, progress=not args.quiet)
     if args.videos is not None:
         if args.n is not None:
@@ -891,7 +888,8 @@ SIGMA_HELP = ("the likelihood's noise SD, in the scenario's unit: ramp: m/s, def
 MOVES_HELP = ("default: widths adapted in a warm-up plus the scenario's exact joint moves (ramp: k1 from the tracked "
               "acceleration, mass-ratio moves); paper: Galileo section 3.2 exactly; fitted: default plus, after the "
               "warm-up, an exact independence move fitted to every chain's warm-up draws (chains that a jagged "
-              "likelihood holds apart meet; needs --warmup >= 10) (default: default)")
+              "likelihood holds apart meet; needs --warmup >= 10) (default: default; with --until-rhat the "
+              "scenario's move set for running until converged: ramp fitted, the others default)")
 SEED_HELP = "random seed of the {what}, 0 to 2^32-1 (default: 0)"
 
 
@@ -1027,7 +1025,7 @@ def build_parser(lazy: bool = True) -> argparse.ArgumentParser:
     i.add_argument("--recognition-move", type=bounded(1, MAX_SWEEPS, integer=True), metavar="EVERY", default=None,
                    help="with --init recognition: also propose the whole latent vector from the recognition "
                         "model every EVERY sweeps, an exact independence MH move (default: never)")
-    i.add_argument("--moves", choices=["default", "paper", "fitted"], default="default", help=MOVES_HELP)
+    i.add_argument("--moves", choices=["default", "paper", "fitted"], default=None, help=MOVES_HELP)
     i.add_argument("--warmup", type=every_int, default=None, metavar="N",
                    help="warm-up sweeps in which widths adapt, dropped with the burn-in (default: half of --sweeps)")
     i.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
@@ -1077,9 +1075,9 @@ def build_parser(lazy: bool = True) -> argparse.ArgumentParser:
     e.add_argument("--sweeps", type=sweeps_int, default=None, metavar="N",
                    help="sweeps per chain (default: the scenario's protocol: 75)")
     e.add_argument("--seed", type=seed_int, default=0, help=SEED_HELP.format(what="chains"))
-    e.add_argument("--moves", choices=["default", "paper", "fitted"], default="default",
+    e.add_argument("--moves", choices=["default", "paper", "fitted"], default=None,
                    help="move set of every video's chains (see `galileo infer --help`; paper: Galileo section 3.2 "
-                        "exactly) (default: default)")
+                        "exactly) (default: default; with --until-rhat the scenario's: ramp fitted)")
     e.add_argument("--priors", metavar="JSON", help="merged into every video's scene priors (see `galileo infer "
                    "--help`) (default: the scenes' priors)")
     e.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
@@ -1160,8 +1158,9 @@ def build_parser(lazy: bool = True) -> argparse.ArgumentParser:
                          "(default: stop after --sweeps)")
     cb.add_argument("--max-sweeps", type=sweeps_int, default=None, metavar="N",
                     help="with --until-rhat: the sweep budget (default: 20 x --sweeps)")
-    cb.add_argument("--moves", choices=["default", "paper", "fitted"], default="default",
-                    help="move set of every inference (see `galileo infer --help`) (default: default)")
+    cb.add_argument("--moves", choices=["default", "paper", "fitted"], default=None,
+                    help="move set of every inference (see `galileo infer --help`) (default: default; with "
+                         "--until-rhat the scenario's: ramp fitted)")
     cb.add_argument("--draws", type=count_int, default=99, metavar="L",
                     help="posterior draws the truth is ranked among, ranks 0..L (default: 99)")
     cb.add_argument("--scenes", default="default", metavar="default|dataset|FILE",

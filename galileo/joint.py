@@ -285,6 +285,7 @@ class JointScenario(Scenario):
         self.paper_widths = base.paper_widths
         self.starts_doc = base.starts_doc
         self.adaptive_walk = base.adaptive_walk
+        self.converge_moves = base.converge_moves
 
     # -- scenes --------------------------------------------------------------------------------
     def scene_from_json(self, data):

@@ -71,6 +71,10 @@ class Scenario(ABC):
     # whether the default move set adds the adaptive joint random walk (`galileo.mcmc.JointRW`); a
     # scenario whose own exact moves follow its posterior's correlations may leave it out
     adaptive_walk: bool = True
+    # the move set that runs until converged (`--until-rhat`, the app's "Run until converged") when
+    # none is asked for (`galileo.api.moves_for`): the one `bench/bench_converge.py` found fastest to
+    # converge on this scenario ("default", "paper" or "fitted"); a fixed number of sweeps keeps "default"
+    converge_moves: str = "default"
     # where chains start unless the recognition model starts them (`initial_positions`), in words
     # for the app's Chains panel
     starts_doc: str = "drawn from the prior"

@@ -121,3 +121,28 @@ def test_the_fitted_move_lets_chains_that_the_jagged_likelihood_holds_apart_meet
     assert max(f["r_hat"].values()) < 1.1 < d["r_hat"]["k2"]
     # the warm-up is the default's, sweep for sweep (the move joins after it)
     assert np.array_equal(fitted.samples[:, :40], default.samples[:, :40])
+
+
+def test_running_until_converged_uses_the_scenarios_converging_moves_unless_told(frozen):
+    """Issue 30's "the good path the default the user meets": `galileo infer --until-rhat` (and
+    the API, experiments, calibration, the app) on the ramp runs the fitted move set unless
+    `--moves` says otherwise; a fixed number of sweeps keeps the default moves (the paper's
+    protocol's budget); a warm-up too short to fit to keeps them too; the splash, whose modes a
+    fitted move does not join (BENCHMARKS.md), keeps its default moves."""
+    from galileo import api, registry
+
+    ramp, splash = registry.get("ramp"), registry.get("splash")
+    assert api.run_config(ramp, until_rhat=1.01).moves == "fitted"
+    assert api.run_config(ramp).moves == "default"
+    assert api.run_config(ramp, until_rhat=1.01, moves="default").moves == "default"
+    assert api.run_config(ramp, until_rhat=1.01, sweeps=8).moves == "default"      # a warm-up of 8 fits nothing
+    assert api.run_config(ramp, until_rhat=1.01, sweeps=40, warmup=6).moves == "default"
+    assert api.run_config(splash, until_rhat=1.01).moves == "default"
+    # it reaches the run: the fitted move joins every chain after the warm-up and is recorded
+    scene, tracks, _ = frozen
+    res = api.infer(scene, tracks, chains=2, sweeps=20, until_rhat=1.000001, max_sweeps=30, workers=1,
+                    progress=False)
+    assert res.doc["config"]["moves"]["set"] == "fitted"
+    assert "fitted" in res.doc["config"]["moves"]["joint"] and res.diagnostics["acceptance"]["fitted_move"] > 0
+    fixed = api.infer(scene, tracks, chains=2, sweeps=20, workers=1, progress=False)
+    assert fixed.doc["config"]["moves"]["set"] == "default"
