@@ -26,6 +26,8 @@ GN_TOL_M = 1e-6            # converged: |dx| + |dz| below this and |dpsi| below 
 GN_TOL_RAD = 1e-5
 RAY_MIN_DET = 1e-12        # rays parallel to a triangle miss it
 RAY_MIN_T = 1e-9           # hits this close to the origin (or behind it) do not count
+RAY_EDGE_TOL = 1e-9        # barycentric slack: a ray through an edge two triangles share hits them (rounding
+                           # could leave it outside both, and the ray would pass through the face)
 
 
 def rot_y(psi: float) -> np.ndarray:
@@ -58,7 +60,7 @@ def ray_cast(shape: Shape, origin_obj: np.ndarray, dirs_obj: np.ndarray) -> np.n
     qvec = np.cross(tvec[None], e1[None])                     # (1, T, 3)
     v = np.einsum("rk,tk->rt", dirs_obj, qvec[0]) * inv
     t = np.einsum("tk,tk->t", e2, qvec[0])[None] * inv
-    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > RAY_MIN_T)
+    hit = ok & (u >= -RAY_EDGE_TOL) & (v >= -RAY_EDGE_TOL) & (u + v <= 1 + RAY_EDGE_TOL) & (t > RAY_MIN_T)
     t = np.where(hit, t, np.inf)
     best = t.min(axis=1)
     out = origin_obj[None] + best[:, None] * dirs_obj
