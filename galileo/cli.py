@@ -418,7 +418,7 @@ def cmd_infer(args: argparse.Namespace) -> int:
     budget = (f": the time budget ({cfg.max_seconds:g} s) is spent" if doc["stopped"] == "max_seconds" else
               f": the sweep budget ({cfg.sweep_budget()}) is spent" if doc["stopped"] == "max_sweeps" else "")
     print(f"{'converged' if diag['converged'] else 'NOT converged'} after {diag['sweeps']} sweeps{budget} "
-          f"({convergence_line(diag)})")
+          f"({convergence_line(diag)}; moves {cfg.moves})")
     print(f"wrote {args.out} and {npz} ({result.timing_s['wall']:.1f} s, {result.steps} physics steps)")
     warning = warning_of(diag)
     if warning:

@@ -431,6 +431,15 @@ def test_cli_infer_until_converged_says_which_budget_stopped_it(demo_dir, tracks
     assert rc == 0, err
     assert "NOT converged after 6 sweeps: the sweep budget (6) is spent" in stdout
     assert json.loads(out.read_text())["stopped"] == "max_sweeps"
+    # which moves ran: a warm-up of 4 sweeps fits nothing, so the default moves; with 20 the ramp's
+    # move set for running until converged, the fitted one
+    assert "; moves default)" in stdout
+    rc, stdout, err = run_cli("infer", demo_dir / "video.mp4", "--scene", DATA / "scene.json", "--tracks", tracks_file,
+                              "--chains", 2, "--sweeps", 20, "--until-rhat", "1.000001", "--max-sweeps", 22,
+                              "--workers", 1, "--out", out, "--quiet")
+    assert rc == 0, err
+    assert "NOT converged after 22 sweeps" in stdout and "; moves fitted)" in stdout
+    assert json.loads(out.read_text())["config"]["moves"]["set"] == "fitted"
 
 
 @pytest.mark.parametrize("change, needle", [
