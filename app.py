@@ -346,7 +346,7 @@ def start_chains(args, session: Path, scene, tracks, init=None, lock=None):
 
     min_ess = MIN_ESS if args.min_ess is None else args.min_ess
     # the app's chains can always be run until converged: by default the scenario's move set for it
-    moves = args.moves or api.moves_for(registry.of(scene), None, 1.01, args.sweeps)
+    moves = api.moves_for(registry.of(scene), args.moves, args.until_rhat, args.sweeps, converging=True)
     try:
         return Controller(scene, tracks, chains=args.chains, seed=args.seed, workers=args.workers,
                           session_dir=session, init=init, moves=moves, sweeps=args.sweeps,

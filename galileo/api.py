@@ -75,16 +75,18 @@ def track(video: str | Path, scene, *, progress: bool = True, debug_video: str |
 # -- inference -------------------------------------------------------------------------------------
 
 def moves_for(scenario, moves: str | None, until_rhat: float | None, sweeps: int | None = None,
-              warmup: int | None = None) -> str:
-    """The move set a run uses: `moves` if given; else, running until converged (`until_rhat`),
-    the scenario's `converge_moves` (the ramp's "fitted"), and "default" for a fixed number of
-    sweeps (the paper's protocol's budget, whose figures BENCHMARKS.md reports). "fitted" needs a
-    warm-up to fit to: where `sweeps` and `warmup` leave too short a one, "default"."""
+              warmup: int | None = None, *, converging: bool | None = None) -> str:
+    """The move set a run uses: `moves` if given; else, for a run that may go on until converged
+    (`converging`; by default: `until_rhat` is given), the scenario's `converge_moves` (the ramp's
+    "fitted"), and "default" for a fixed number of sweeps (the paper's protocol's budget, whose
+    figures BENCHMARKS.md reports). The app's chains can always be run until converged
+    (`converging=True`). "fitted" needs a warm-up to fit to: where `sweeps`, `warmup` and
+    `until_rhat` leave too short a one (`RunConfig.warmup_sweeps`), "default"."""
     from .runner import FITTED_MIN_WARMUP, RunConfig
 
     if moves is not None:
         return moves
-    if until_rhat is None:
+    if not (until_rhat is not None if converging is None else converging):
         return "default"
     if scenario.converge_moves == "fitted" and sweeps is not None and RunConfig(
             sweeps=sweeps, until_rhat=until_rhat, warmup=warmup).warmup_sweeps() < FITTED_MIN_WARMUP:

@@ -138,6 +138,12 @@ def test_running_until_converged_uses_the_scenarios_converging_moves_unless_told
     assert api.run_config(ramp, until_rhat=1.01, sweeps=8).moves == "default"      # a warm-up of 8 fits nothing
     assert api.run_config(ramp, until_rhat=1.01, sweeps=40, warmup=6).moves == "default"
     assert api.run_config(splash, until_rhat=1.01).moves == "default"
+    # the app's sessions, which can always be run until converged; its warm-up is half the sweep
+    # target unless it is told to run until converged (then at least 100 or all of them)
+    assert api.moves_for(ramp, None, None, 75, converging=True) == "fitted"
+    assert api.moves_for(ramp, None, None, 12, converging=True) == "default"        # a warm-up of 6
+    assert api.moves_for(ramp, None, 1.01, 12, converging=True) == "fitted"         # a warm-up of 12
+    assert api.moves_for(ramp, "paper", None, 75, converging=True) == "paper"
     # it reaches the run: the fitted move joins every chain after the warm-up and is recorded
     scene, tracks, _ = frozen
     res = api.infer(scene, tracks, chains=2, sweeps=20, until_rhat=1.000001, max_sweeps=30, workers=1,
