@@ -66,6 +66,9 @@ def test_declares_its_face(name):
     assert d["latents"] and set(d["capabilities"]) == set(CAPABILITIES)
     for cap in CAPABILITIES:
         assert d["capabilities"][cap] == (getattr(s, cap) is not None)
+    from galileo.runner import MOVE_SETS
+
+    assert s.converge_moves in MOVE_SETS     # what runs until converged without --moves
 
 
 @pytest.mark.parametrize("name", NAMES)
