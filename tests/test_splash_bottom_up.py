@@ -86,3 +86,23 @@ def test_a_lone_component_below_the_water_line_is_where_the_object_rests():
     fg[10:30, 40:60] = True
     start, rest = _start_and_rest(fg, 50.0)
     assert start[20, 50] and not start[80, 50] and rest[80, 50] and not rest[20, 50]
+
+
+@pytest.mark.parametrize("kind, volume_cm3", [("hcyl", 5.0), ("vcyl", 4.0)])
+def test_motion_blur_is_taken_off_the_volume(kind, volume_cm3, tmp_path):
+    """A thin lying pole and a coin let go 0.1 s before the video starts, filmed with the shutter
+    open half of each frame (`--camera blur`): every silhouette in the air is a streak, taller
+    than the object by half the distance it falls in a frame (16-21 px here, against a 1-2 cm
+    object: read as it is, the volume comes out 1.6x and 1.9x too large). The shutter's share
+    is measured from the streaks (0.5 +- 2 SD), and the volume is within 30% of the truth and
+    inside its 90% interval."""
+    from galileo.footage import Footage, effects_from_name
+    from galileo.scenarios.splash.render import render_to_video
+
+    scene = default_scene(kind, volume_cm3, 7.0, release_s=-24 / 240)
+    scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, n_frames=30))
+    render_to_video(scene, tmp_path / "video.mp4", 30, footage=Footage(effects_from_name("blur"), scene.camera, 0))
+    bu = track(scene, tmp_path).objects[0].bottom_up
+    assert abs(bu["exposure_share"] - 0.5) < max(2 * bu["exposure_share_sd"], 0.05)
+    err = abs(math.log(bu["volume_cm3"] / volume_cm3))
+    assert err < math.log(1.3) and err < 1.645 * bu["volume_log_sd"], bu

@@ -99,3 +99,38 @@ def test_catalogue_inside_priors():
         assert LATENT_SPECS["area_cm2"].bounds[0] <= o.area_cm2 <= LATENT_SPECS["area_cm2"].bounds[1]
         assert 1.0 <= o.volume_cm3 <= 100.0 and 0.5 <= o.drag_water <= 1.2
     assert len(plan("full", 0)) == 72 and len(plan("small", 0)) == 8
+
+
+def test_a_blurred_frame_streaks_by_its_travel_over_the_exposure_frame_0_included():
+    """Motion blur over half a frame's interval, the object let go 0.1 s before the video
+    starts: in frame 0 as in a later frame in the air, the object's streak along the image's
+    v is longer than its sharp silhouette (the segmentation at the frame's time) by the
+    projected distance it falls while the shutter is open (Newton: v t_e about the frame's
+    time, from the release's speed g t). A camera's first frame is exposed like any other."""
+    from galileo.render import blur_offsets
+    from galileo.scenarios.splash.render import Renderer
+
+    spec = plan("demo", 0)[0]
+    scene = scene_for(spec)
+    r = Renderer(scene)                       # the default look: no drift, no noise
+    release_s, exposure = -0.1, 0.5           # (24 steps of 1/240 s before the video)
+    n = round(scene.sim_hz / scene.fps)
+    shots = {}
+    traj = r.render(12, values={"release_s": release_s}, blur=blur_offsets(exposure, n // 2 + 1),
+                    on_image=lambda f, rgb, seg: shots.__setitem__(f, (rgb.astype(float), seg)), with_segmentation=True)
+    cam = scene.camera
+    empty = shots[11][0]                      # the object deep in the water by then: the wall behind it, empty
+    rows = lambda m: np.flatnonzero(m.any(axis=1))
+    for f in (0, 1):
+        t = f / scene.fps - release_s
+        p, v = traj.position_m[0, f], np.array([0.0, 0.0, -9.81 * t])
+        assert p[2] - 0.03 > scene.tank.water_level_m, f        # in the air, whole
+        rgb, seg = shots[f]
+        still = seg == r.body_id
+        u, v_px = cam.project(p)
+        vv, uu = np.indices(still.shape)
+        near = (np.abs(uu - u) < 60) & (np.abs(vv - v_px) < 60)   # (the rest of the frame: the wall, lit alike)
+        streak = (np.abs(rgb - empty).max(axis=2) > 3) & near
+        half = v * exposure / scene.fps / 2
+        travel = abs(cam.project(p + half)[1] - cam.project(p - half)[1])
+        assert np.ptp(rows(streak)) - np.ptp(rows(still)) == pytest.approx(travel, abs=1.5), f

@@ -340,7 +340,8 @@ class Renderer:
         `Simulator.run`); on_image(frame, rgb[, seg]) for each. Returns the trajectory of the
         shown frames. blur: motion blur's sampling (n, k) (`galileo.render.blur_offsets`, n the
         physics steps a frame): frame f the mean of the renders at steps n f + k of video time
-        (those before frame 0 drawn at frame 0), seg frame f's own."""
+        (frame 0's too: the run starts -min(k) steps before the video, as a camera's shutter
+        opens before its first frame's time), seg frame f's own."""
         release_s = (values or {}).get("release_s", self.scene.release_s)
         if self.scene.frame_ticks(release_s)[1]:
             raise GalileoError(f"rendering needs the release on the physics grid (a whole number of 1/{self.scene.sim_hz:g} s "
@@ -366,29 +367,33 @@ class Renderer:
 
         # the run at one sample a physics step: its scene's camera at sub times the fps (the same
         # steps from the release; frame f is sample sub f)
+        # (the run's sample j is video step j - pre: it starts pre steps before the video, the
+        # release that much later in its time)
         sub, offsets = blur
         lo, hi = int(offsets.min()), int(offsets.max())
+        pre = -lo
         cam = self.scene.camera
         fine = dataclasses.replace(self.scene, camera=dataclasses.replace(
-            cam, fps=sub * cam.fps, n_frames=sub * (n_frames - 1) + hi + 1))
+            cam, fps=sub * cam.fps, n_frames=pre + sub * (n_frames - 1) + hi + 1))
+        early = {**(values or {}), "release_s": release_s + pre / (sub * cam.fps)}
         sharp: dict[int, tuple[np.ndarray, np.ndarray]] = {}   # sample -> its render, while a frame needs it
 
         def on_sample(j, pos, vel):
             texture(j)
-            if j == 0 or any((j - int(k)) % sub == 0 for k in offsets):
+            if any((j - pre - int(k)) % sub == 0 for k in offsets):
                 sharp[j] = self._sharp()
-            f, r = divmod(j - hi, sub)
+            f, r = divmod(j - pre - hi, sub)
             if r == 0 and 0 <= f < n_frames:
-                img = average_renders([sharp[max(0, sub * f + int(k))][0] for k in offsets])
+                img = average_renders([sharp[pre + sub * f + int(k)][0] for k in offsets])
                 rgb = self._exposed(img.astype(float), f)
                 if on_image is not None:
-                    on_image(f, rgb, sharp[sub * f][1]) if with_segmentation else on_image(f, rgb)
-                for old in [i for i in sharp if i < sub * (f + 1) + lo]:
+                    on_image(f, rgb, sharp[pre + sub * f][1]) if with_segmentation else on_image(f, rgb)
+                for old in [i for i in sharp if i < pre + sub * (f + 1) + lo]:
                     del sharp[old]
             return False
 
-        traj = Simulator(fine, visual=True).run(fine.camera.n_frames, values, on_frame=on_sample)
-        frames = slice(0, sub * (n_frames - 1) + 1, sub)
+        traj = Simulator(fine, visual=True).run(fine.camera.n_frames, early, on_frame=on_sample)
+        frames = slice(pre, pre + sub * (n_frames - 1) + 1, sub)
         return Trajectory(cam.fps, traj.names, traj.position_m[:, frames], traj.velocity_mps[:, frames],
                           traj.orientation_xyzw[:, frames])
 

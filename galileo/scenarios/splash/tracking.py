@@ -43,12 +43,18 @@
    run from half to twice as deep as wide: log 2 / 1.645), a vertical cylinder round (depth
    w; a slightly oval one: log 1.2 / 1.645), a horizontal cylinder's depth its diameter H
    (it may lie turned: log 1.5 / 1.645). Volumes: box w^2 H, vcyl pi/4 w^2 H, hcyl pi/4 H^2 w.
+   Motion blur: a silhouette of a moving object is a streak, its extent along each image axis
+   the object's own plus the shutter's open share of the distance its centre moves in a frame
+   there (`travel_px`, from the track); the share is measured from how the extents grow with
+   that distance over the frames (`exposure_share`: uniform on [0, 1], each extent known to
+   EXTENT_SD_PX) and each fitted size shortened by its streak (at most halved); the share's
+   uncertainty goes into the volume's.
    `kind_probs`: a softmax of the kinds' mean losses, at a temperature of the frame-to-frame
    spread of the loss differences, and at least the IoU's own resolution (the outline moved
    by BOUNDARY_PX: from a side view a box, an upright and a lying cylinder differ by a few
    outline pixels, so the kinds are often nearly equally probable, and said so). `kind`: the
    most probable; `volume_cm3`: its median per-frame volume; `volume_log_sd`: the depth
-   assumption's, the frames' spread, a pixel on each size and the other kinds' volumes
+   assumption's, the frames' spread, a pixel on each size, the blur's share and the other kinds' volumes
    weighed by their probabilities, added in quadrature (inference's prior on the log of the
    volume over it is U(-2 sd, 2 sd)). The first BOTTOM_UP_FRAMES silhouettes give the
    shape the tracker centres silhouettes on (`first_guess`).
@@ -112,6 +118,8 @@ HOLD_PX = 2.0              # held: the centre within this of where it was first 
 # the depth the camera cannot see, per kind: the SD of the log volume its assumption leaves (module docstring)
 BOUNDARY_PX = 0.5          # a silhouette's outline is known to this (px): the kinds' fits resolve no finer
 DEPTH_LOG_SD = {"box": math.log(2.0) / 1.645, "vcyl": math.log(1.2) / 1.645, "hcyl": math.log(1.5) / 1.645}
+EXTENT_SD_PX = 1.0         # a silhouette's box extent is known to this (px): half a pixel at each end
+EXPOSURE_GRID = np.linspace(0.0, 1.0, 41)   # the shutter's share of the frame interval: uniform prior, this grid
 DEBUG_COLORS = {"object": (255, 200, 0)}   # debug video (RGB)
 FALL_HALF_WIDTH_M = 0.1    # the object falls within this of the release point's x (either side) ...
 FALL_ABOVE_M = 0.1         # ... from up to this above it to the tank's floor: it is looked for there only (what
@@ -182,11 +190,50 @@ def first_guess(cam, masks: list[np.ndarray], y_plane: float) -> tuple[str, floa
     return kind, float(w), float(h)
 
 
-def bottom_up(cam, masks: list[np.ndarray], y_plane: float, m_per_px: float) -> tuple[str, float, float, dict]:
+def exposure_share(extent_px: np.ndarray, travel_px: np.ndarray) -> tuple[float, float]:
+    """The shutter's open share of the frame interval (mean, SD) from silhouettes of a moving
+    object: frame j's box extent along each image axis (`extent_px` (n, 2): across u, along v)
+    is the object's own, the same in every frame, plus the share times the distance its centre
+    moves over a frame interval there (`travel_px` (n, 2)): a streak, the silhouette swept over
+    the exposure. Each axis's own extent free (a flat prior); the share uniform on [0, 1]
+    (a shutter opens at most for the whole interval), each extent known to EXTENT_SD_PX: the
+    posterior on EXPOSURE_GRID. Frames that all move alike (or one frame) leave it as the
+    prior says: 0.5 +- 0.29."""
+    e = np.asarray(extent_px, float)
+    t = np.asarray(travel_px, float)
+    r = e[None] - EXPOSURE_GRID[:, None, None] * t[None]              # (grid, n, 2): the extent left
+    ss = ((r - r.mean(axis=1, keepdims=True)) ** 2).sum(axis=(1, 2))
+    w = np.exp(-(ss - ss.min()) / (2 * EXTENT_SD_PX ** 2))
+    w /= w.sum()
+    mean = float(w @ EXPOSURE_GRID)
+    return mean, float(math.sqrt(max(float(w @ (EXPOSURE_GRID - mean) ** 2), 0.0)))
+
+
+def bottom_up(cam, masks: list[np.ndarray], y_plane: float, m_per_px: float,
+              travel_px: np.ndarray | None = None) -> tuple[str, float, float, dict]:
     """Kind, width and height (m) and the track's `bottom_up` dict from silhouettes of the
-    object in the air (each fitted by every kind; see the module docstring)."""
+    object in the air (each fitted by every kind; see the module docstring). `travel_px` (n, 2):
+    how far the object's centre moves over a frame interval at each mask's frame (|du|, |dv|
+    px); given, motion blur's streak is taken off the sizes (`exposure_share`)."""
     losses, sizes = _kind_sizes(cam, masks, y_plane)
     n = len(masks)
+    blur_var = {k: 0.0 for k in KINDS}
+    share = share_sd = 0.0
+    if travel_px is not None and np.max(travel_px) > EXTENT_SD_PX:
+        travel_px = np.asarray(travel_px, float)
+        extent = np.array([[np.ptp(np.nonzero(m.any(axis=0))[0]) + 1, np.ptp(np.nonzero(m.any(axis=1))[0]) + 1]
+                           for m in masks], float)
+        share, share_sd = exposure_share(extent, travel_px)
+        streak_m = share * travel_px * m_per_px                          # (n, 2): across, along v
+        for k in KINDS:
+            # each size less its streak, at least half what was measured and a pixel
+            floor = np.maximum(0.5 * sizes[k], m_per_px)
+            sizes[k] = np.maximum(sizes[k] - streak_m, floor)
+            # the share's uncertainty on the log volume: d log V / d size over the median streak
+            w_k, h_k = np.median(sizes[k], axis=0)
+            dw, dh = (1.0, 2.0) if k == "hcyl" else (2.0, 1.0)
+            su, sv = share_sd * np.median(travel_px, axis=0) * m_per_px
+            blur_var[k] = (dw * su / w_k) ** 2 + (dh * sv / h_k) ** 2
     mean = np.array([losses[k].mean() for k in KINDS])
     # the temperature: how much a kind's loss lead moves from frame to frame (the SD of the
     # per-frame loss differences, pooled over kinds; not divided by sqrt(n): the frames show
@@ -211,10 +258,11 @@ def bottom_up(cam, masks: list[np.ndarray], y_plane: float, m_per_px: float) -> 
     # as likely as the kinds
     w_px, hh_px = max(w / m_per_px, 1.0), max(h / m_per_px, 1.0)
     var = (DEPTH_LOG_SD[kind] ** 2 + (float(np.var(log_v[kind], ddof=1)) if n > 1 else 0.0)
-           + 2.0 / w_px ** 2 + 1.0 / hh_px ** 2
+           + 2.0 / w_px ** 2 + 1.0 / hh_px ** 2 + blur_var[kind]
            + sum(pk * (centre[k] - centre[kind]) ** 2 for k, pk in zip(KINDS, p)))
     info = {"kind": kind, "volume_cm3": float(math.exp(centre[kind])), "volume_log_sd": float(math.sqrt(var)),
-            "kind_probs": {k: float(pk) for k, pk in zip(KINDS, p)}, "frames_in_air": n}
+            "kind_probs": {k: float(pk) for k, pk in zip(KINDS, p)}, "frames_in_air": n,
+            "exposure_share": round(share, 3), "exposure_share_sd": round(share_sd, 3)}
     return kind, float(w), float(h), info
 
 
@@ -430,7 +478,7 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     if not np.any(lowest < water + ENTRY_PX * m_per_px):
         bar.close()
         raise GalileoError(f"nothing enters the water in {video_path}: the object stays above the water line")
-    kind_sizes, notes = _measure(cam, in_air, hw, y_plane, m_per_px, first)
+    kind_sizes, notes = _measure(cam, in_air, hw, y_plane, m_per_px, first, centre)
     kind, w, h, found = kind_sizes
     found.update(_release(centre, visible, cam.fps))
     shape, _ = _shape(kind, w, h)
@@ -458,23 +506,46 @@ def _counted(frames, bar):
         yield f
 
 
-def _measure(cam, in_air: list, hw: tuple[int, int], y_plane: float, m_per_px: float, first: list):
+def travel_px(centre: np.ndarray, f: int) -> np.ndarray | None:
+    """How far the image centre moves over a frame interval at frame f (|du|, |dv| px): the
+    central difference, or at a track's first or last frame the second-order one-sided one
+    (both exact for a fall's constant acceleration); None where the frames around f are not
+    all seen."""
+    ok = lambda *js: all(0 <= j < len(centre) and np.isfinite(centre[j]).all() for j in js)
+    if ok(f - 1, f + 1):
+        d = (centre[f + 1] - centre[f - 1]) / 2
+    elif ok(f, f + 1, f + 2):
+        d = (-3 * centre[f] + 4 * centre[f + 1] - centre[f + 2]) / 2
+    elif ok(f - 2, f - 1, f):
+        d = (3 * centre[f] - 4 * centre[f - 1] + centre[f - 2]) / 2
+    else:
+        return None
+    return np.abs(d)
+
+
+def _measure(cam, in_air: list, hw: tuple[int, int], y_plane: float, m_per_px: float, first: list,
+             centre: np.ndarray):
     """((kind, w, h, the bottom_up dict), notes) from the silhouettes in the air (at most
-    BOTTOM_UP_MAX_FRAMES of them, evenly spaced); from the first silhouettes, with a note,
-    when the object was never seen whole in the air."""
+    BOTTOM_UP_MAX_FRAMES of them, evenly spaced; their motion blur taken off where the centre's
+    track says how fast each moves); from the first silhouettes, with a note, when the object
+    was never seen whole in the air."""
     notes = []
+    travel = None
     if len(in_air) >= 1:
-        masks = []
+        masks, moved = [], []
         for j in spread(np.arange(len(in_air)), BOTTOM_UP_MAX_FRAMES):
-            _, (x0, y0, cw, ch), sil = in_air[int(j)]
+            f, (x0, y0, cw, ch), sil = in_air[int(j)]
             m = np.zeros(hw, bool)
             m[y0:y0 + ch, x0:x0 + cw] = sil
             masks.append(m)
+            moved.append(travel_px(centre, f))
+        if all(t is not None for t in moved):
+            travel = np.array(moved)
     else:
         masks = first
         notes.append("the object is never seen whole above the water: its shape kind and volume are measured "
                      "on its first silhouettes, which may be in the water (tinted, and magnified by the glass)")
-    return bottom_up(cam, masks, y_plane, m_per_px), notes
+    return bottom_up(cam, masks, y_plane, m_per_px, travel), notes
 
 
 def _release(centre: np.ndarray, visible: np.ndarray, fps: float) -> dict:
