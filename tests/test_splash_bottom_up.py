@@ -106,3 +106,39 @@ def test_motion_blur_is_taken_off_the_volume(kind, volume_cm3, tmp_path):
     assert abs(bu["exposure_share"] - 0.5) < max(2 * bu["exposure_share_sd"], 0.05)
     err = abs(math.log(bu["volume_cm3"] / volume_cm3))
     assert err < math.log(1.3) and err < 1.645 * bu["volume_log_sd"], bu
+
+
+def test_a_frames_travel_is_the_falls_speed_there_gaps_and_ends_included():
+    """Image centres of a fall at constant acceleration (v = 120 + 8 f + 1.5 f^2 px, a lateral
+    drift of 0.3 px a frame): a frame's travel is the parabola's slope there, 8 + 3 f, whether
+    its neighbours are both seen (a central difference), only on one side (the video's first
+    frame, a gap), or it is unseen between seen ones; None with fewer than two within two frames
+    of it."""
+    from galileo.scenarios.splash.tracking import travel_px
+
+    f = np.arange(12, dtype=float)
+    centre = np.stack([300 + 0.3 * f, 120 + 8 * f + 1.5 * f ** 2], axis=1)
+    centre[[5, 9, 10]] = np.nan
+    for j in (0, 3, 4, 5, 6, 8):
+        assert travel_px(centre, j) == pytest.approx([0.3, 8 + 3 * j], abs=1e-9), j
+    assert travel_px(centre, 11) is None          # (9 and 10 unseen)
+    lone = np.full((5, 2), np.nan)
+    lone[2] = (300, 120)
+    assert travel_px(lone, 2) is None and travel_px(centre[:1], 0) is None
+
+
+def test_the_shutters_share_is_read_from_how_streaks_grow_with_speed():
+    """Silhouette extents of a 40 x 12 px object moving 5-50 px a frame down the image with the
+    shutter open 40% of each frame, each extent off by up to a pixel (N(0, 0.5 px)): the share
+    is 0.4 within 2 SD, and that SD small; one frame, or frames that all move alike, say nothing
+    of it: the uniform prior's mean 0.5 and SD 1/sqrt(12)."""
+    from galileo.scenarios.splash.tracking import exposure_share
+
+    rng = np.random.default_rng(0)
+    travel = np.stack([np.full(6, 0.5), np.linspace(5, 50, 6)], axis=1)
+    extent = np.array([40.0, 12.0]) + 0.4 * travel + rng.normal(0, 0.5, travel.shape)
+    share, sd = exposure_share(extent, travel)
+    assert abs(share - 0.4) < 2 * sd and sd < 0.03
+    for e, t in ((extent[:1], travel[:1]), (extent[:3], np.tile(travel[3], (3, 1)))):
+        share, sd = exposure_share(e, t)
+        assert share == pytest.approx(0.5, abs=1e-9) and sd == pytest.approx(1 / math.sqrt(12), abs=0.01)

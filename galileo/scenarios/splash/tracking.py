@@ -120,6 +120,8 @@ BOUNDARY_PX = 0.5          # a silhouette's outline is known to this (px): the k
 DEPTH_LOG_SD = {"box": math.log(2.0) / 1.645, "vcyl": math.log(1.2) / 1.645, "hcyl": math.log(1.5) / 1.645}
 EXTENT_SD_PX = 1.0         # a silhouette's box extent is known to this (px): half a pixel at each end
 EXPOSURE_GRID = np.linspace(0.0, 1.0, 41)   # the shutter's share of the frame interval: uniform prior, this grid
+TRAVEL_WINDOW = 1          # a frame's travel from the centres seen within this many frames of it (a parabola
+                           # through three: the water, a few frames on, slows the object)
 DEBUG_COLORS = {"object": (255, 200, 0)}   # debug video (RGB)
 FALL_HALF_WIDTH_M = 0.1    # the object falls within this of the release point's x (either side) ...
 FALL_ABOVE_M = 0.1         # ... from up to this above it to the tank's floor: it is looked for there only (what
@@ -181,10 +183,31 @@ def _kind_sizes(cam, masks: list[np.ndarray], y_plane: float):
     return {k: np.array(v) for k, v in losses.items()}, {k: np.array(v) for k, v in sizes.items()}
 
 
-def first_guess(cam, masks: list[np.ndarray], y_plane: float) -> tuple[str, float, float]:
-    """Kind, width and height (m) from a few silhouettes: the shape the tracker takes to
-    centre the silhouettes on (`bottom_up` measures the object once it is tracked)."""
+def first_travel(masks: list[np.ndarray], frames: list[int]):
+    """travel(f) -> (n, 2) |du|, |dv| px a frame at frames f: the slope of a curve (a parabola
+    through three or more, a line through two) through the silhouettes' box centres at their
+    frames (a streak's centre is the object's at the frame's time); None from fewer than two."""
+    if len(set(frames)) != len(frames) or len(frames) < 2:
+        return None
+    f = np.asarray(frames, float)
+    coef = np.polyfit(f, np.array([_bbox_centre(m) for m in masks]), min(len(f) - 1, 2))   # (deg + 1, 2)
+    slope = [np.polyder(coef[:, a]) for a in range(2)]
+    return lambda at: np.abs(np.stack([np.polyval(slope[a], at) for a in range(2)], axis=-1))
+
+
+def first_guess(cam, masks: list[np.ndarray], y_plane: float, m_per_px: float,
+                frames: list[int] | None = None) -> tuple[str, float, float]:
+    """Kind, width and height (m) from a few silhouettes (of video frames `frames`): the
+    shape the tracker takes to centre the silhouettes on (`bottom_up` measures the object
+    once it is tracked). Their motion blur is taken off as `bottom_up` does, each one's
+    travel from a curve through their box centres (a streak's centre is the object's at the
+    frame's time): a blurred first guess is taller than the object, and the object, slowed
+    in the water, would look too small against it to be taken for itself."""
     losses, sizes = _kind_sizes(cam, masks, y_plane)
+    if frames is not None:
+        travel = first_travel(masks, frames)
+        if travel is not None:
+            sizes = _unblurred(sizes, masks, travel(np.asarray(frames, float)), m_per_px)[0]
     kind = min(KINDS, key=lambda k: float(losses[k].mean()))
     w, h = np.median(sizes[kind], axis=0)
     return kind, float(w), float(h)
@@ -196,17 +219,44 @@ def exposure_share(extent_px: np.ndarray, travel_px: np.ndarray) -> tuple[float,
     is the object's own, the same in every frame, plus the share times the distance its centre
     moves over a frame interval there (`travel_px` (n, 2)): a streak, the silhouette swept over
     the exposure. Each axis's own extent free (a flat prior); the share uniform on [0, 1]
-    (a shutter opens at most for the whole interval), each extent known to EXTENT_SD_PX: the
-    posterior on EXPOSURE_GRID. Frames that all move alike (or one frame) leave it as the
-    prior says: 0.5 +- 0.29."""
+    (a shutter opens at most for the whole interval), each extent known to EXTENT_SD_PX, or
+    to the best fit's residual SD where that is larger (an object that turns, a silhouette
+    that a splash or the frame's edge cuts: the share is then less sure): the posterior on
+    EXPOSURE_GRID. Frames that all move alike (or one frame) leave it as the prior says:
+    0.5 +- 0.29."""
     e = np.asarray(extent_px, float)
     t = np.asarray(travel_px, float)
     r = e[None] - EXPOSURE_GRID[:, None, None] * t[None]              # (grid, n, 2): the extent left
     ss = ((r - r.mean(axis=1, keepdims=True)) ** 2).sum(axis=(1, 2))
-    w = np.exp(-(ss - ss.min()) / (2 * EXTENT_SD_PX ** 2))
+    var = max(EXTENT_SD_PX ** 2, float(ss.min()) / max(e.size - 3, 1))   # (two extents and the share fitted)
+    w = np.exp(-(ss - ss.min()) / (2 * var))
     w /= w.sum()
     mean = float(w @ EXPOSURE_GRID)
     return mean, float(math.sqrt(max(float(w @ (EXPOSURE_GRID - mean) ** 2), 0.0)))
+
+
+def _unblurred(sizes: dict, masks: list[np.ndarray], travel_px: np.ndarray | None, m_per_px: float):
+    """(sizes, share, share SD, per kind the variance it adds to the log volume): each kind's
+    per-frame sizes (w, h) less motion blur's streak, the shutter's share (`exposure_share`)
+    times the frame's travel (`travel_px` (n, 2), |du| and |dv| px; None or no motion: as they are)."""
+    blur_var = {k: 0.0 for k in KINDS}
+    if travel_px is None or np.max(travel_px) <= EXTENT_SD_PX:
+        return sizes, 0.0, 0.0, blur_var
+    travel_px = np.asarray(travel_px, float)
+    extent = np.array([[np.ptp(np.nonzero(m.any(axis=0))[0]) + 1, np.ptp(np.nonzero(m.any(axis=1))[0]) + 1]
+                       for m in masks], float)
+    share, share_sd = exposure_share(extent, travel_px)
+    streak_m = share * travel_px * m_per_px                          # (n, 2): across, along v
+    out = {}
+    for k in KINDS:
+        # each size less its streak, at least half what was measured and a pixel
+        out[k] = np.maximum(sizes[k] - streak_m, np.maximum(0.5 * sizes[k], m_per_px))
+        # the share's uncertainty on the log volume: d log V / d size over the median streak
+        w_k, h_k = np.median(out[k], axis=0)
+        dw, dh = (1.0, 2.0) if k == "hcyl" else (2.0, 1.0)
+        su, sv = share_sd * np.median(travel_px, axis=0) * m_per_px
+        blur_var[k] = float((dw * su / w_k) ** 2 + (dh * sv / h_k) ** 2)
+    return out, share, share_sd, blur_var
 
 
 def bottom_up(cam, masks: list[np.ndarray], y_plane: float, m_per_px: float,
@@ -217,23 +267,7 @@ def bottom_up(cam, masks: list[np.ndarray], y_plane: float, m_per_px: float,
     px); given, motion blur's streak is taken off the sizes (`exposure_share`)."""
     losses, sizes = _kind_sizes(cam, masks, y_plane)
     n = len(masks)
-    blur_var = {k: 0.0 for k in KINDS}
-    share = share_sd = 0.0
-    if travel_px is not None and np.max(travel_px) > EXTENT_SD_PX:
-        travel_px = np.asarray(travel_px, float)
-        extent = np.array([[np.ptp(np.nonzero(m.any(axis=0))[0]) + 1, np.ptp(np.nonzero(m.any(axis=1))[0]) + 1]
-                           for m in masks], float)
-        share, share_sd = exposure_share(extent, travel_px)
-        streak_m = share * travel_px * m_per_px                          # (n, 2): across, along v
-        for k in KINDS:
-            # each size less its streak, at least half what was measured and a pixel
-            floor = np.maximum(0.5 * sizes[k], m_per_px)
-            sizes[k] = np.maximum(sizes[k] - streak_m, floor)
-            # the share's uncertainty on the log volume: d log V / d size over the median streak
-            w_k, h_k = np.median(sizes[k], axis=0)
-            dw, dh = (1.0, 2.0) if k == "hcyl" else (2.0, 1.0)
-            su, sv = share_sd * np.median(travel_px, axis=0) * m_per_px
-            blur_var[k] = (dw * su / w_k) ** 2 + (dh * sv / h_k) ** 2
+    sizes, share, share_sd, blur_var = _unblurred(sizes, masks, travel_px, m_per_px)
     mean = np.array([losses[k].mean() for k in KINDS])
     # the temperature: how much a kind's loss lead moves from frame to frame (the SD of the
     # per-frame loss differences, pooled over kinds; not divided by sqrt(n): the frames show
@@ -376,7 +410,8 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     water = scene.tank.water_level_m
     release = np.asarray(scene.release_m, float)
     m_per_px = float((cam.world_to_camera[:3, :3] @ release + cam.world_to_camera[:3, 3])[2] / cam.K[0, 0])
-    water_row = float(cam.project(np.array([release[0], y_plane, water]))[1]) * scale
+    water_px = float(cam.project(np.array([release[0], y_plane, water]))[1])   # the water line's row there
+    water_row = water_px * scale
     bar = tqdm(total=n, desc="tracking 1/2: learning the tank", unit="frame", disable=not progress)  # (a bar a pass)
     bg, noise, shown = _learn_tank(video, n, scale, bar, water_row)
     elsewhere = [False]   # whether something moved outside the region
@@ -393,26 +428,29 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
             yield y, None if fg is None else largest_component(fg & region)
 
     # the shape to centre silhouettes on: the first usable silhouettes
-    first = []
-    for _, blob in silhouettes():
+    first, first_frames = [], []
+    for f, (_, blob) in enumerate(silhouettes()):
         if blob is not None:
             first.append(blob)
+            first_frames.append(f)
             if len(first) == BOTTOM_UP_FRAMES:
                 break
     if len(first) < 2:
         bar.close()
         raise StillVideo(f"nothing moves in {video_path}: no object against the tank's background")
-    kind, w, h = first_guess(cam, first, y_plane)
+    kind, w, h = first_guess(cam, first, y_plane, m_per_px, first_frames)
+    early_travel = first_travel(first, first_frames)
     shape, rot = _shape(kind, w, h)
 
     def expected(uv):
-        """Silhouette area and (projected centre - silhouette box centre) of the fitted
-        shape whose centre projects to uv."""
+        """Silhouette area, (projected centre - silhouette box centre) and box extent (u, v px)
+        of the fitted shape whose centre projects to uv."""
         c = backproject_to_plane(cam, uv[None], y_plane)[0]
         sil = shape_silhouette(cam, shape, rot, c) > 0
         if not sil.any():
-            return 0, np.zeros(2)
-        return int(sil.sum()), cam.project(c) - _bbox_centre(sil)
+            return 0, np.zeros(2), np.zeros(2)
+        ys, xs = np.nonzero(sil)
+        return int(sil.sum()), cam.project(c) - _bbox_centre(sil), np.array([np.ptp(xs) + 1, np.ptp(ys) + 1], float)
 
     centre = np.full((n, 2), np.nan)
     pts = np.zeros((0, 2), np.float32)
@@ -448,9 +486,13 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
         c = None
         if blob is not None:
             c_box = _bbox_centre(blob)
-            area, off = expected(c_box)
+            area, off, extent = expected(c_box)
             c_box = c_box + off
-            if area and AREA_OK[0] <= blob.sum() / area <= AREA_OK[1]:
+            # at most the shape swept over a whole frame's travel (motion blur: a streak)
+            travel = (np.abs(c_box - c_prev) / (i - i_prev) if c_prev is not None
+                      else early_travel(float(i)) if early_travel is not None else np.zeros(2))
+            swept = area + travel[1] * extent[0] + travel[0] * extent[1]
+            if area and AREA_OK[0] * area <= blob.sum() <= AREA_OK[1] * swept:
                 c = c_box
         dt = (i - i_prev) / cam.fps if c_prev is not None else 0.0
         if c is not None and not plausible(cam, y_plane, c, c_prev, dt):
@@ -465,6 +507,10 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
             i_prev, shift = i, np.zeros(2)
             bottom_m = backproject_to_plane(cam, c[None], y_plane)[0, 2] - h / 2
             wet = wet or bottom_m < water + AIR_MARGIN_PX * m_per_px
+            if from_silhouette:   # a blurred silhouette's streak reaches lower than the shape, by up to half
+                # the frame's travel (the water's part of it, tinted, may be cut off the silhouette)
+                reach = max(float(np.flatnonzero(blob.any(axis=1))[-1]), c[1] + (extent[1] + travel[1]) / 2)
+                wet = wet or reach > water_px - AIR_MARGIN_PX
             if from_silhouette and not wet:
                 in_air.append((i, *crop(blob, FIT_PAD_PX)))
         if blob is not None and len(pts) < max(MIN_FEATURES, N_FEATURES // 2):
@@ -508,19 +554,22 @@ def _counted(frames, bar):
 
 def travel_px(centre: np.ndarray, f: int) -> np.ndarray | None:
     """How far the image centre moves over a frame interval at frame f (|du|, |dv| px): the
-    central difference, or at a track's first or last frame the second-order one-sided one
-    (both exact for a fall's constant acceleration); None where the frames around f are not
-    all seen."""
-    ok = lambda *js: all(0 <= j < len(centre) and np.isfinite(centre[j]).all() for j in js)
-    if ok(f - 1, f + 1):
-        d = (centre[f + 1] - centre[f - 1]) / 2
-    elif ok(f, f + 1, f + 2):
-        d = (-3 * centre[f] + 4 * centre[f + 1] - centre[f + 2]) / 2
-    elif ok(f - 2, f - 1, f):
-        d = (3 * centre[f] - 4 * centre[f - 1] + centre[f - 2]) / 2
+    slope at f of a parabola (a line, through two) through f's centre and the nearest seen
+    within 2 TRAVEL_WINDOW frames on either side, or two on one side where the other has none
+    (a fall's constant acceleration is a parabola: a central difference, or a second-order
+    one-sided one); None where fewer than two are seen, or f is neither seen nor between seen ones."""
+    seen = lambda j: 0 <= j < len(centre) and bool(np.isfinite(centre[j]).all())
+    before = [j for j in range(f - 1, f - 1 - 2 * TRAVEL_WINDOW, -1) if seen(j)]
+    after = [j for j in range(f + 1, f + 1 + 2 * TRAVEL_WINDOW) if seen(j)]
+    if before and after:
+        js = [before[0], *([f] if seen(f) else []), after[0]]
     else:
+        js = ([f] if seen(f) else []) + (before or after)[:2]
+    if len(js) < 2 or not (seen(f) or (before and after)):
         return None
-    return np.abs(d)
+    js = np.array(sorted(js))
+    coef = np.polyfit(js - f, centre[js], min(len(js) - 1, 2))          # (deg + 1, 2): at f, the slope is coef[-2]
+    return np.abs(coef[-2])
 
 
 def _measure(cam, in_air: list, hw: tuple[int, int], y_plane: float, m_per_px: float, first: list,
