@@ -26,7 +26,8 @@
 4. The object's centre per frame: the centre of its silhouette's bounding box, corrected
    by the offset between the fitted 3-D shape's projected centre and its silhouette's
    box centre (the camera sees the top face too); where the silhouette is not usable
-   (too small or large against the fitted shape's, or missing) the KLT motion of the
+   (too small against the fitted shape's, or too large against it swept over the frame's
+   travel: a motion-blurred silhouette is a streak; or missing) the KLT motion of the
    features carries the last centre on. A centre farther from the last one than the
    object could move in the time between them (MAX_SPEED_MPS on the release plane) is
    dropped, the frame left without one. Back-projected onto the plane y = release_m[1]
@@ -35,7 +36,8 @@
    track's own position noise (`position_sd_m`, from its third differences where it moves: a
    blurred, compressed or shaken video's is larger) is the likelihood's least noise.
 5. Bottom-up kind and volume (`bottom_up`), measured on up to BOTTOM_UP_MAX_FRAMES
-   silhouettes of the object in the air (its bottom AIR_MARGIN_PX above the water line),
+   silhouettes of the object in the air (its bottom, and its streak's, AIR_MARGIN_PX above
+   the water line),
    evenly spaced (a falling object may turn): each fitted (least 1 - IoU) by each kind at
    the release plane, sizes w (across) and H (high). The camera sees width and height, never
    depth: the depth assumption per kind, with its uncertainty (DEPTH_LOG_SD, the SD of the
@@ -57,7 +59,7 @@
    assumption's, the frames' spread, a pixel on each size, the blur's share and the other kinds' volumes
    weighed by their probabilities, added in quadrature (inference's prior on the log of the
    volume over it is U(-2 sd, 2 sd)). The first BOTTOM_UP_FRAMES silhouettes give the
-   shape the tracker centres silhouettes on (`first_guess`).
+   shape the tracker centres silhouettes on (`first_guess`, its blur taken off alike).
 6. The release (`_release`): the last frame at which the object's centre is within HOLD_PX
    of where it was first seen (`release_s`: its time; `held_frames`); null where it moves
    from its first frame (let go before the video starts). Inference puts the release's
