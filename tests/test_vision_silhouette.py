@@ -63,3 +63,25 @@ def test_klt_window_fits_the_silhouette():
     fat[20:80, 20:180] = True
     assert klt_window(thin) == WIN_MIN and klt_window(fat) == WIN_MAX
     assert all(klt_window(m) % 2 == 1 for m in (thin, fat))
+
+
+def test_a_polygon_filled_by_pixel_centres_holds_the_integer_points_inside_it():
+    """Pixel (x, y) is centred on (x, y): a square from 2.2 to 7.9 holds the centres 3..7 on
+    each axis (25 pixels; OpenCV's fill of its rounded corners takes 2..8, 49), a triangle the
+    lattice points inside it (counted directly), whichever way round its corners are given."""
+    from galileo.vision.silhouette import fill_polygon, fill_polygon_centres
+
+    sq = np.array([(2.2, 2.2), (7.9, 2.2), (7.9, 7.9), (2.2, 7.9)])
+    m = fill_polygon_centres(sq, (12, 12))
+    ys, xs = np.nonzero(m)
+    assert (xs.min(), xs.max(), ys.min(), ys.max(), int(m.sum())) == (3, 7, 3, 7, 25)
+    assert fill_polygon(np.round(sq).astype(np.int32), (12, 12)).sum() == 49   # (rounded: 2..8, 7 x 7)
+    tri = np.array([(1.3, 1.7), (17.6, 4.2), (6.1, 14.9)])
+    inside = 0
+    for y in range(20):
+        for x in range(20):
+            d = [(b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0])
+                 for a, b in ((tri[i], tri[(i + 1) % 3]) for i in range(3))]
+            inside += all(v >= 0 for v in d) or all(v <= 0 for v in d)
+    for pts in (tri, tri[::-1]):
+        assert int(fill_polygon_centres(pts, (20, 20)).sum()) == inside

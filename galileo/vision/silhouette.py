@@ -28,6 +28,27 @@ def fill_polygon(points: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
     return m
 
 
+def fill_polygon_centres(points: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    """(h, w) boolean mask of the pixels whose centres (integer coordinates: pixel (x, y) is
+    centred on (x, y), as `Camera.project` and a renderer's rasteriser take it) lie inside the
+    convex polygon of float points. `fill_polygon` of rounded points (OpenCV's fill) also takes
+    every pixel the outline touches: a shape a pixel wider and higher than it is."""
+    h, w = hw
+    p = np.asarray(points, float).reshape(-1, 2)
+    x0, y0 = max(int(np.floor(p[:, 0].min())), 0), max(int(np.floor(p[:, 1].min())), 0)
+    x1, y1 = min(int(np.ceil(p[:, 0].max())) + 1, w), min(int(np.ceil(p[:, 1].max())) + 1, h)
+    out = np.zeros((h, w), bool)
+    if x1 <= x0 or y1 <= y0 or len(p) < 3:
+        return out
+    a, b = p, np.roll(p, -1, axis=0)
+    turn = float(np.sum(a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]))       # the polygon's orientation
+    ys, xs = np.mgrid[y0:y1, x0:x1].astype(float)
+    cross = ((b[:, 0] - a[:, 0])[:, None, None] * (ys[None] - a[:, 1, None, None])
+             - (b[:, 1] - a[:, 1])[:, None, None] * (xs[None] - a[:, 0, None, None]))
+    out[y0:y1, x0:x1] = np.all(cross >= 0, axis=0) if turn > 0 else np.all(cross <= 0, axis=0)
+    return out
+
+
 def pixel_hull(mask: np.ndarray) -> np.ndarray:
     """The convex hull of the mask's pixels, filled (boolean)."""
     ys, xs = np.nonzero(mask)
@@ -35,24 +56,28 @@ def pixel_hull(mask: np.ndarray) -> np.ndarray:
 
 
 def project_silhouette(cam: Camera, points_obj: np.ndarray, rot: np.ndarray, centre: np.ndarray,
-                       roi: tuple[int, int, int, int] | None = None) -> np.ndarray:
+                       roi: tuple[int, int, int, int] | None = None, centres: bool = False) -> np.ndarray:
     """uint8 mask (1 inside) of the convex hull of object-frame points posed at (rot, centre)
     and projected (through the lens: `Camera.project`), over the region of interest (x0, y0,
     w, h) or the whole image; empty where a point does not project. The hull of the distorted
     points: a lens bends the outline's edges between them by k1 r^2 of a shape's few pixels,
-    well under a pixel at the bound a camera allows."""
+    well under a pixel at the bound a camera allows. `centres`: the pixels whose centres lie in
+    the hull (`fill_polygon_centres`, as a renderer draws it), not every pixel it touches."""
     x0, y0, w, h = (0, 0, cam.width_px, cam.height_px) if roi is None else roi
     uv = cam.project(points_obj @ rot.T + centre)
     if roi is not None:
         uv = uv - [x0, y0]
     if not np.all(np.isfinite(uv)):
         return np.zeros((h, w), np.uint8)
+    if centres:
+        return fill_polygon_centres(cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2), (h, w)).astype(np.uint8)
     return fill_polygon(np.round(cv2.convexHull(uv.astype(np.float32))).astype(np.int32).reshape(-1, 2), (h, w))
 
 
-def shape_silhouette(cam: Camera, shape: Shape, rot: np.ndarray, centre: np.ndarray, roi=None) -> np.ndarray:
+def shape_silhouette(cam: Camera, shape: Shape, rot: np.ndarray, centre: np.ndarray, roi=None,
+                     centres: bool = False) -> np.ndarray:
     """uint8 mask of the shape at a pose (see `project_silhouette`)."""
-    return project_silhouette(cam, shape.outline_points(), rot, centre, roi)
+    return project_silhouette(cam, shape.outline_points(), rot, centre, roi, centres)
 
 
 def iou_loss(sil: np.ndarray, obs: np.ndarray) -> float:
@@ -70,21 +95,22 @@ def crop(mask: np.ndarray, pad: int) -> tuple[tuple[int, int, int, int], np.ndar
     return (int(x0), int(y0), int(x1 - x0), int(y1 - y0)), mask[y0:y1, x0:x1].astype(bool)
 
 
-def _loss(cam: Camera, mask: np.ndarray, posed: Posed, pad: int):
+def _loss(cam: Camera, mask: np.ndarray, posed: Posed, pad: int, centres: bool = False):
     roi, obs = crop(mask, pad)
 
     def loss(p):
-        return iou_loss(shape_silhouette(cam, *posed(p), roi).astype(bool), obs)
+        return iou_loss(shape_silhouette(cam, *posed(p), roi, centres).astype(bool), obs)
 
     return loss
 
 
-def fit_silhouette(cam: Camera, mask: np.ndarray, posed: Posed, p0: np.ndarray, pad: int):
+def fit_silhouette(cam: Camera, mask: np.ndarray, posed: Posed, p0: np.ndarray, pad: int, centres: bool = False):
     """Parameters whose posed shape's silhouette best overlaps the observed one (least
-    1 - IoU, Nelder-Mead from p0); scipy's result (x, fun)."""
+    1 - IoU, Nelder-Mead from p0; the silhouette's pixels those it touches, or with `centres`
+    those whose centres it holds); scipy's result (x, fun)."""
     from scipy.optimize import minimize
 
-    return minimize(_loss(cam, mask, posed, pad), p0, method="Nelder-Mead",
+    return minimize(_loss(cam, mask, posed, pad, centres), p0, method="Nelder-Mead",
                     options={"xatol": FIT_XATOL, "fatol": FIT_FATOL, "maxiter": FIT_MAXITER})
 
 

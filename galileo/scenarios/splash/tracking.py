@@ -169,7 +169,8 @@ def _fit(cam, mask: np.ndarray, y_plane: float, kind: str):
         shape, rot = _shape(kind, math.exp(p[2]), math.exp(p[3]))
         return shape, rot, np.array([p[0], y_plane, p[1]])
 
-    res = fit_silhouette(cam, mask, posed, np.array([c0[0], c0[2], math.log(w0), math.log(h0)]), FIT_PAD_PX)
+    res = fit_silhouette(cam, mask, posed, np.array([c0[0], c0[2], math.log(w0), math.log(h0)]), FIT_PAD_PX,
+                         centres=True)
     return float(res.fun), np.array(res.x[:2]), math.exp(res.x[2]), math.exp(res.x[3])
 
 
@@ -448,7 +449,7 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
         """Silhouette area, (projected centre - silhouette box centre) and box extent (u, v px)
         of the fitted shape whose centre projects to uv."""
         c = backproject_to_plane(cam, uv[None], y_plane)[0]
-        sil = shape_silhouette(cam, shape, rot, c) > 0
+        sil = shape_silhouette(cam, shape, rot, c, centres=True) > 0
         if not sil.any():
             return 0, np.zeros(2), np.zeros(2)
         ys, xs = np.nonzero(sil)
