@@ -147,6 +147,7 @@ def test_the_renderers_object_pixels_are_those_whose_centres_its_outline_holds(k
     from galileo.render import Look
     from galileo.scenarios.splash.render import Renderer
     from galileo.scenarios.splash.scene import CM2, CM3, body_shape, default_scene, dimensions
+    from galileo.sim.bullet import pb
     from galileo.vision.silhouette import iou_loss, shape_silhouette
 
     scene = default_scene(kind, 30.0, 0.5, release_s=0.5)
@@ -155,10 +156,7 @@ def test_the_renderers_object_pixels_are_those_whose_centres_its_outline_holds(k
     r.render(1, on_image=lambda f, rgb, seg: shots.__setitem__(f, seg), with_segmentation=True)
     seen = shots[0] == r.body_id
     shape, q = body_shape(kind, dimensions(kind, scene.obj.volume_cm3 * CM3, scene.obj.area_cm2 * CM2))
-    x, y, z, w = q
-    rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                    [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                    [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    rot = np.array(pb.getMatrixFromQuaternion(q)).reshape(3, 3)   # (Bullet's, as it drops the body)
     centre = np.asarray(scene.release_m, float)
     exact = iou_loss(shape_silhouette(scene.camera, shape, rot, centre, centres=True) > 0, seen)
     touched = iou_loss(shape_silhouette(scene.camera, shape, rot, centre) > 0, seen)

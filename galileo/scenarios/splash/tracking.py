@@ -158,6 +158,12 @@ def _bbox_centre(mask: np.ndarray) -> np.ndarray:
     return np.array([(xs.min() + xs.max()) / 2.0, (ys.min() + ys.max()) / 2.0])
 
 
+def _bbox_extent(mask: np.ndarray) -> np.ndarray:
+    """The mask's box extent (across u, along v; px)."""
+    ys, xs = np.nonzero(mask)
+    return np.array([np.ptp(xs) + 1, np.ptp(ys) + 1], float)
+
+
 def _fit(cam, mask: np.ndarray, y_plane: float, kind: str):
     """(loss, centre (x, z), w, h) of the `kind` shape whose silhouette best fits the mask."""
     ys, xs = np.nonzero(mask)
@@ -246,10 +252,9 @@ def _unblurred(sizes: dict, masks: list[np.ndarray], travel_px: np.ndarray | Non
     if travel_px is None or np.max(travel_px) <= EXTENT_SD_PX:
         return sizes, 0.0, 0.0, blur_var
     travel_px = np.asarray(travel_px, float)
-    extent = np.array([[np.ptp(np.nonzero(m.any(axis=0))[0]) + 1, np.ptp(np.nonzero(m.any(axis=1))[0]) + 1]
-                       for m in masks], float)
-    share, share_sd = exposure_share(extent, travel_px)
+    share, share_sd = exposure_share(np.array([_bbox_extent(m) for m in masks]), travel_px)
     streak_m = share * travel_px * m_per_px                          # (n, 2): across, along v
+    su, sv = share_sd * np.median(travel_px, axis=0) * m_per_px      # the share's uncertainty, in m
     out = {}
     for k in KINDS:
         # each size less its streak, at least half what was measured and a pixel
@@ -257,7 +262,6 @@ def _unblurred(sizes: dict, masks: list[np.ndarray], travel_px: np.ndarray | Non
         # the share's uncertainty on the log volume: d log V / d size over the median streak
         w_k, h_k = np.median(out[k], axis=0)
         dw, dh = (1.0, 2.0) if k == "hcyl" else (2.0, 1.0)
-        su, sv = share_sd * np.median(travel_px, axis=0) * m_per_px
         blur_var[k] = float((dw * su / w_k) ** 2 + (dh * sv / h_k) ** 2)
     return out, share, share_sd, blur_var
 
@@ -452,8 +456,7 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
         sil = shape_silhouette(cam, shape, rot, c, centres=True) > 0
         if not sil.any():
             return 0, np.zeros(2), np.zeros(2)
-        ys, xs = np.nonzero(sil)
-        return int(sil.sum()), cam.project(c) - _bbox_centre(sil), np.array([np.ptp(xs) + 1, np.ptp(ys) + 1], float)
+        return int(sil.sum()), cam.project(c) - _bbox_centre(sil), _bbox_extent(sil)
 
     centre = np.full((n, 2), np.nan)
     pts = np.zeros((0, 2), np.float32)
