@@ -35,10 +35,14 @@
    differences (`galileo.vision.velocity`). Frames without either are `visible: false`. The
    track's own position noise (`position_sd_m`, from its third differences where it moves: a
    blurred, compressed or shaken video's is larger) is the likelihood's least noise.
-5. Bottom-up kind and volume (`bottom_up`), measured on up to BOTTOM_UP_MAX_FRAMES
-   silhouettes of the object in the air (its bottom, and its streak's, AIR_MARGIN_PX above
-   the water line),
-   evenly spaced (a falling object may turn): each fitted (least 1 - IoU) by each kind at
+5. Bottom-up kind and volume (`bottom_up`), measured on the BOTTOM_UP_MAX_FRAMES sharpest
+   silhouettes: those whose centre moves least over a frame (`travel_px`), in the air (its
+   bottom, and its streak's, AIR_MARGIN_PX above the water line) or wholly under the water (its
+   top AIR_MARGIN_PX below the line) before it reaches the floor (landing, it may tip over);
+   evenly spaced in time where more are as sharp (a falling object may turn). A thin object dropped from high streaks
+   through the air to several times its own height and its corners are lost to the streak (a
+   lying pole and a flat disc look alike); slowed by the water it shows its own outline. Each
+   fitted (least 1 - IoU) by each kind at
    the release plane, sizes w (across) and H (high). The camera sees width and height, never
    depth: the depth assumption per kind, with its uncertainty (DEPTH_LOG_SD, the SD of the
    log of depth over its assumed value): a box's bottom is square (depth w; everyday blocks
@@ -71,8 +75,11 @@ notes for unevenly timed frames (a variable frame rate) and an object seen in fe
 
 Note: the rendered videos open with the object held at its release point or already
 falling through the air (released 12-20 cm above the water); either way its first
-silhouettes are in the air. Under water the renderer draws no refraction (a real flat-walled tank magnifies what is
-under water by up to the water's index, 1.33, which this does not correct).
+silhouettes are in the air. Under water the renderer draws no refraction. A real flat-walled
+tank magnifies what is under water, which this does not correct: seen from a distance D
+through water d deep behind the glass, by D / (D - d (1 - 1/1.33)) (2% for an object 8 cm
+behind the glass filmed from a metre; up to 1.33 from close by), so sizes measured under the
+water (item 5) read that much large.
 """
 from __future__ import annotations
 
@@ -244,15 +251,22 @@ def exposure_share(extent_px: np.ndarray, travel_px: np.ndarray) -> tuple[float,
     return mean, float(math.sqrt(max(float(w @ (EXPOSURE_GRID - mean) ** 2), 0.0)))
 
 
-def _unblurred(sizes: dict, masks: list[np.ndarray], travel_px: np.ndarray | None, m_per_px: float):
+def _unblurred(sizes: dict, masks: list[np.ndarray], travel_px: np.ndarray | None, m_per_px: float,
+               share: tuple[float, float] | None = None):
     """(sizes, share, share SD, per kind the variance it adds to the log volume): each kind's
-    per-frame sizes (w, h) less motion blur's streak, the shutter's share (`exposure_share`)
-    times the frame's travel (`travel_px` (n, 2), |du| and |dv| px; None or no motion: as they are)."""
+    per-frame sizes (w, h) less motion blur's streak, the shutter's share (`share`, (mean, SD);
+    None: `exposure_share` of the masks) times the frame's travel (`travel_px` (n, 2), |du| and
+    |dv| px; None or no motion: as they are)."""
     blur_var = {k: 0.0 for k in KINDS}
-    if travel_px is None or np.max(travel_px) <= EXTENT_SD_PX:
-        return sizes, 0.0, 0.0, blur_var
+    moving = travel_px is not None and np.max(travel_px) > EXTENT_SD_PX
+    if share is None:
+        if not moving:
+            return sizes, 0.0, 0.0, blur_var
+        share = exposure_share(np.array([_bbox_extent(m) for m in masks]), np.asarray(travel_px, float))
+    share, share_sd = share
+    if not moving:
+        return sizes, share, share_sd, blur_var
     travel_px = np.asarray(travel_px, float)
-    share, share_sd = exposure_share(np.array([_bbox_extent(m) for m in masks]), travel_px)
     streak_m = share * travel_px * m_per_px                          # (n, 2): across, along v
     su, sv = share_sd * np.median(travel_px, axis=0) * m_per_px      # the share's uncertainty, in m
     out = {}
@@ -267,14 +281,16 @@ def _unblurred(sizes: dict, masks: list[np.ndarray], travel_px: np.ndarray | Non
 
 
 def bottom_up(cam, masks: list[np.ndarray], y_plane: float, m_per_px: float,
-              travel_px: np.ndarray | None = None) -> tuple[str, float, float, dict]:
+              travel_px: np.ndarray | None = None,
+              share: tuple[float, float] | None = None) -> tuple[str, float, float, dict]:
     """Kind, width and height (m) and the track's `bottom_up` dict from silhouettes of the
     object in the air (each fitted by every kind; see the module docstring). `travel_px` (n, 2):
     how far the object's centre moves over a frame interval at each mask's frame (|du|, |dv|
-    px); given, motion blur's streak is taken off the sizes (`exposure_share`)."""
+    px); given, motion blur's streak is taken off the sizes: the shutter's share `share`
+    (mean, SD), or measured from these masks (`exposure_share`)."""
     losses, sizes = _kind_sizes(cam, masks, y_plane)
     n = len(masks)
-    sizes, share, share_sd, blur_var = _unblurred(sizes, masks, travel_px, m_per_px)
+    sizes, share, share_sd, blur_var = _unblurred(sizes, masks, travel_px, m_per_px, share)
     mean = np.array([losses[k].mean() for k in KINDS])
     # the temperature: how much a kind's loss lead moves from frame to frame (the SD of the
     # per-frame loss differences, pooled over kinds; not divided by sqrt(n): the frames show
@@ -302,7 +318,7 @@ def bottom_up(cam, masks: list[np.ndarray], y_plane: float, m_per_px: float,
            + 2.0 / w_px ** 2 + 1.0 / hh_px ** 2 + blur_var[kind]
            + sum(pk * (centre[k] - centre[kind]) ** 2 for k, pk in zip(KINDS, p)))
     info = {"kind": kind, "volume_cm3": float(math.exp(centre[kind])), "volume_log_sd": float(math.sqrt(var)),
-            "kind_probs": {k: float(pk) for k, pk in zip(KINDS, p)}, "frames_in_air": n,
+            "kind_probs": {k: float(pk) for k, pk in zip(KINDS, p)}, "frames_measured": n,
             "exposure_share": round(share, 3), "exposure_share_sd": round(share_sd, 3)}
     return kind, float(w), float(h), info
 
@@ -464,8 +480,10 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     shift = np.zeros(2)                              # the features' motion since frame i_prev
     features = []
     prev, last = None, 0                             # the last frame that shows the scene
-    in_air = []                                      # (frame, region, silhouette there) of the object in the air
+    in_air, in_water = [], []                        # (frame, region, silhouette there) of the object in the air,
+                                                     # and wholly under the water
     wet, jumps = False, 0                            # whether it reached the water; silhouettes dropped as jumps
+    landed = False                                   # whether it reached the tank's floor (where it may tip over)
     bar.set_description("tracking 2/2: following the object", refresh=False)
     bar.reset(total=n)
     for i, (gray, blob) in enumerate(silhouettes()):
@@ -513,12 +531,15 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
             i_prev, shift = i, np.zeros(2)
             bottom_m = backproject_to_plane(cam, c[None], y_plane)[0, 2] - h / 2
             wet = wet or bottom_m < water + AIR_MARGIN_PX * m_per_px
+            landed = landed or bottom_m < AIR_MARGIN_PX * m_per_px
             if from_silhouette:   # a blurred silhouette's streak reaches lower than the shape, by up to half
                 # the frame's travel (the water's part of it, tinted, may be cut off the silhouette)
                 reach = max(float(np.flatnonzero(blob.any(axis=1))[-1]), c[1] + (extent[1] + travel[1]) / 2)
                 wet = wet or reach > water_px - AIR_MARGIN_PX
             if from_silhouette and not wet:
                 in_air.append((i, *crop(blob, FIT_PAD_PX)))
+            elif from_silhouette and not landed and float(np.flatnonzero(blob.any(axis=1))[0]) > water_px + AIR_MARGIN_PX:
+                in_water.append((i, *crop(blob, FIT_PAD_PX)))
         if blob is not None and len(pts) < max(MIN_FEATURES, N_FEATURES // 2):
             pts = np.concatenate([pts, seed_features(gray, blob, N_FEATURES - len(pts), avoid=pts)])
         features.append(pts.copy())
@@ -530,7 +551,7 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     if not np.any(lowest < water + ENTRY_PX * m_per_px):
         bar.close()
         raise GalileoError(f"nothing enters the water in {video_path}: the object stays above the water line")
-    kind_sizes, notes = _measure(cam, in_air, hw, y_plane, m_per_px, first, centre)
+    kind_sizes, notes = _measure(cam, in_air, in_water, hw, y_plane, m_per_px, first, centre)
     kind, w, h, found = kind_sizes
     found.update(_release(centre, visible, cam.fps))
     shape, _ = _shape(kind, w, h)
@@ -578,29 +599,57 @@ def travel_px(centre: np.ndarray, f: int) -> np.ndarray | None:
     return np.abs(coef[-2])
 
 
-def _measure(cam, in_air: list, hw: tuple[int, int], y_plane: float, m_per_px: float, first: list,
-             centre: np.ndarray):
-    """((kind, w, h, the bottom_up dict), notes) from the silhouettes in the air (at most
-    BOTTOM_UP_MAX_FRAMES of them, evenly spaced; their motion blur taken off where the centre's
-    track says how fast each moves); from the first silhouettes, with a note, when the object
-    was never seen whole in the air."""
+def sharpest(seen: list, centre: np.ndarray, n: int) -> tuple[list, np.ndarray | None]:
+    """(up to n of the silhouettes `seen` ((frame, ...) tuples), their travel (k, 2) px a frame,
+    or None): the n whose centre moves least over a frame (`travel_px`: the shortest streaks),
+    in time order; where more move as little as the n-th, n evenly spread over those in time.
+    Those whose travel is unknown (too few centres near them) only where none is known: all of
+    them spread evenly, and no travel."""
+    known = [(j, t) for j, t in ((j, travel_px(centre, s[0])) for j, s in enumerate(seen)) if t is not None]
+    if not known:
+        return [seen[int(j)] for j in spread(np.arange(len(seen)), n)], None
+    speed = np.array([float(np.hypot(*t)) for _, t in known])
+    order = np.argsort(speed, kind="stable")
+    cut = speed[order[min(n, len(order)) - 1]]            # the n-th smallest travel: all as sharp as it
+    tied = [k for k in range(len(known)) if speed[k] <= cut]
+    tied.sort(key=lambda k: seen[known[k][0]][0])
+    picked = [tied[int(j)] for j in spread(np.arange(len(tied)), n)]
+    return [seen[known[k][0]] for k in picked], np.array([known[k][1] for k in picked])
+
+
+def _measure(cam, in_air: list, in_water: list, hw: tuple[int, int], y_plane: float, m_per_px: float,
+             first: list, centre: np.ndarray):
+    """((kind, w, h, the bottom_up dict), notes) from the sharpest silhouettes in the air or
+    under the water (`sharpest`; their motion blur taken off where the centre's track says how
+    fast each moves); from the first silhouettes, with a note, when the object was never seen
+    whole in either."""
     notes = []
-    travel = None
-    if len(in_air) >= 1:
-        masks, moved = [], []
-        for j in spread(np.arange(len(in_air)), BOTTOM_UP_MAX_FRAMES):
-            f, (x0, y0, cw, ch), sil = in_air[int(j)]
+    if in_air or in_water:
+        seen = in_air + in_water
+        picked, travel = sharpest(seen, centre, BOTTOM_UP_MAX_FRAMES)
+        masks = []
+        for f, (x0, y0, cw, ch), sil in picked:
             m = np.zeros(hw, bool)
             m[y0:y0 + ch, x0:x0 + cw] = sil
             masks.append(m)
-            moved.append(travel_px(centre, f))
-        if all(t is not None for t in moved):
-            travel = np.array(moved)
-    else:
-        masks = first
-        notes.append("the object is never seen whole above the water: its shape kind and volume are measured "
-                     "on its first silhouettes, which may be in the water (tinted, and magnified by the glass)")
-    return bottom_up(cam, masks, y_plane, m_per_px, travel), notes
+        # the shutter's share from the silhouettes in the air whose travel is known (the streaks say
+        # it, the sharp ones measured hardly do; in free fall a parabola gives each frame's travel,
+        # where the water's sudden drag does not), from all of them where fewer than two are
+        known = lambda group: [(_bbox_extent(sil), t) for (f, _, sil), t in ((s, travel_px(centre, s[0]))
+                                                                             for s in group) if t is not None]
+        moved = known(in_air)
+        if len(moved) < 2:
+            moved = known(seen)
+        share = (exposure_share(np.array([e for e, _ in moved]), np.array([t for _, t in moved]))
+                 if moved and max(float(np.max(t)) for _, t in moved) > EXTENT_SD_PX else None)
+        kind_sizes = bottom_up(cam, masks, y_plane, m_per_px, travel, share)
+        air_frames = {s[0] for s in in_air}
+        kind_sizes[3]["frames_in_water"] = sum(1 for s in picked if s[0] not in air_frames)
+        return kind_sizes, notes
+    masks = first
+    notes.append("the object is never seen whole above or below the water line: its shape kind and volume are "
+                 "measured on its first silhouettes, which may be cut by the water's surface")
+    return bottom_up(cam, masks, y_plane, m_per_px, None), notes
 
 
 def _release(centre: np.ndarray, visible: np.ndarray, fps: float) -> dict:
