@@ -284,7 +284,8 @@ def bottom_up(cam, masks: list[np.ndarray], y_plane: float, m_per_px: float,
               travel_px: np.ndarray | None = None,
               share: tuple[float, float] | None = None) -> tuple[str, float, float, dict]:
     """Kind, width and height (m) and the track's `bottom_up` dict from silhouettes of the
-    object in the air (each fitted by every kind; see the module docstring). `travel_px` (n, 2):
+    object as dropped, in the air or under the water (each fitted by every kind; see the module
+    docstring). `travel_px` (n, 2):
     how far the object's centre moves over a frame interval at each mask's frame (|du|, |dv|
     px); given, motion blur's streak is taken off the sizes: the shutter's share `share`
     (mean, SD), or measured from these masks (`exposure_share`)."""
