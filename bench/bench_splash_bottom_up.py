@@ -6,7 +6,8 @@ Usage (from the repository root):
 
 Without --data it renders the preset into a temporary folder first (`galileo dataset`). Each
 video: the true kind and volume (truth.json) against the track's bottom_up; the release
-against the scene's release_s (a release before frame 0: the track should say null).
+against the scene's release_s (a release before frame 0: the track should say null). A video
+whose tracking fails is listed with the reason and counted, not measured.
 """
 from __future__ import annotations
 
@@ -21,12 +22,17 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from galileo import registry  # noqa: E402
+from galileo.errors import GalileoError  # noqa: E402
 from galileo.scenarios.splash.dataset import build  # noqa: E402
 
 
 def measure(folder: Path) -> dict:
+    """The video's row; {"name", "failed": why} where tracking refuses it (counted, not measured)."""
     scene = registry.load_scene(folder / "scene.json")
-    (obj,) = registry.of(scene).track(folder / "video.mp4", scene, progress=False).objects
+    try:
+        (obj,) = registry.of(scene).track(folder / "video.mp4", scene, progress=False).objects
+    except GalileoError as e:
+        return {"name": folder.name, "failed": str(e)}
     truth = json.loads((folder / "truth.json").read_text())["latents"]
     bu = obj.bottom_up
     log_err = math.log(bu["volume_cm3"] / truth["volume_cm3"])
@@ -55,6 +61,10 @@ def main(argv=None) -> int:
     if a.json:
         print(json.dumps(rows, indent=1))
         return 0
+    failed = [r for r in rows if "failed" in r]
+    rows = [r for r in rows if "failed" not in r]
+    for r in failed:
+        print(f"{r['name']}: tracking failed: {r['failed']}")
     print(f"{'video':24s} {'kind':5s} {'found':5s} {'p(true)':>7s} {'V true':>7s} {'V found':>7s} {'error':>7s} "
           f"{'log sd':>6s} {'in 90%':>6s} {'release':>8s} {'found':>8s}")
     for r in rows:
@@ -66,7 +76,7 @@ def main(argv=None) -> int:
     errs = [r["error"] for r in rows]
     print(f"\nvolume: median |error| {statistics.median(abs(e) for e in errs):.1%}, bias (median error) "
           f"{statistics.median(errs):+.1%}; 90% interval covers the truth in {sum(r['covered'] for r in rows)}"
-          f"/{len(rows)}")
+          f"/{len(rows)}; {len(failed)} video(s) not tracked")
     print(f"kind right {sum(r['kind'] == r['kind_found'] for r in rows)}/{len(rows)}, mean p(true kind) "
           f"{statistics.mean(r['p_true_kind'] for r in rows):.2f}")
     rel = [r["release_error_frames"] for r in rows if r["release_error_frames"] is not None]
