@@ -174,24 +174,27 @@ def test_the_sharpest_silhouettes_are_measured_in_time_order():
     (the first in the air and the slow ones under the water), in time order; where more move as
     little as the n-th, n evenly spread over them; where no travel is known (a lone centre),
     all of them spread evenly, with no travel."""
-    from galileo.scenarios.splash.tracking import sharpest
+    from galileo.scenarios.splash.tracking import sharpest, travel_px
+
+    def pick(seen, centre, n):
+        return sharpest(seen, [travel_px(centre, s[0]) for s in seen], n)
 
     f = np.arange(14, dtype=float)
     v = np.where(f < 6, 100 + 2 * f ** 2, 100 + 2 * 25 + 20 + 3 * (f - 5))
     centre = np.stack([np.full_like(f, 300.0), v], axis=1)
     air = [(int(j), "air") for j in range(6)]
     water = [(int(j), "water") for j in range(7, 14)]
-    picked, travel = sharpest(air + water, centre, 4)
+    picked, travel = pick(air + water, centre, 4)
     speed = np.hypot(*travel.T)
     assert [p[0] for p in picked] == sorted(p[0] for p in picked)
     assert picked[0] == (0, "air") and speed.max() <= 4.0 + 1e-9 and len(picked) == 4
     assert all(p[1] == "water" for p in picked[1:])
     # all under the water move alike (3 px): the 7 tie, four spread from the first to the last
-    picked, travel = sharpest(water, centre, 4)
+    picked, travel = pick(water, centre, 4)
     assert [p[0] for p in picked] == [7, 9, 11, 13] and np.allclose(travel[:, 1], 3.0)
     lone = np.full((14, 2), np.nan)
     lone[3] = (300.0, 118.0)
-    picked, travel = sharpest(air, lone, 4)
+    picked, travel = pick(air, lone, 4)
     assert travel is None and [p[0] for p in picked] == [0, 2, 3, 5]
 
 

@@ -535,12 +535,12 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
             landed = landed or bottom_m < AIR_MARGIN_PX * m_per_px
             if from_silhouette:   # a blurred silhouette's streak reaches lower than the shape, by up to half
                 # the frame's travel (the water's part of it, tinted, may be cut off the silhouette)
-                reach = max(float(np.flatnonzero(blob.any(axis=1))[-1]), c[1] + (extent[1] + travel[1]) / 2)
-                wet = wet or reach > water_px - AIR_MARGIN_PX
-            if from_silhouette and not wet:
-                in_air.append((i, *crop(blob, FIT_PAD_PX)))
-            elif from_silhouette and not landed and float(np.flatnonzero(blob.any(axis=1))[0]) > water_px + AIR_MARGIN_PX:
-                in_water.append((i, *crop(blob, FIT_PAD_PX)))
+                rows = np.flatnonzero(blob.any(axis=1))
+                wet = wet or max(float(rows[-1]), c[1] + (extent[1] + travel[1]) / 2) > water_px - AIR_MARGIN_PX
+                if not wet:
+                    in_air.append((i, *crop(blob, FIT_PAD_PX)))
+                elif not landed and rows[0] > water_px + AIR_MARGIN_PX:
+                    in_water.append((i, *crop(blob, FIT_PAD_PX)))
         if blob is not None and len(pts) < max(MIN_FEATURES, N_FEATURES // 2):
             pts = np.concatenate([pts, seed_features(gray, blob, N_FEATURES - len(pts), avoid=pts)])
         features.append(pts.copy())
@@ -600,13 +600,13 @@ def travel_px(centre: np.ndarray, f: int) -> np.ndarray | None:
     return np.abs(coef[-2])
 
 
-def sharpest(seen: list, centre: np.ndarray, n: int) -> tuple[list, np.ndarray | None]:
-    """(up to n of the silhouettes `seen` ((frame, ...) tuples), their travel (k, 2) px a frame,
-    or None): the n whose centre moves least over a frame (`travel_px`: the shortest streaks),
-    in time order; where more move as little as the n-th, n evenly spread over those in time.
-    Those whose travel is unknown (too few centres near them) only where none is known: all of
-    them spread evenly, and no travel."""
-    known = [(j, t) for j, t in ((j, travel_px(centre, s[0])) for j, s in enumerate(seen)) if t is not None]
+def sharpest(seen: list, travel: list, n: int) -> tuple[list, np.ndarray | None]:
+    """(up to n of the silhouettes `seen` ((frame, ...) tuples, in time order), their travel
+    (k, 2) px a frame, or None): the n whose centre moves least over a frame (`travel`, each
+    one's `travel_px` or None: the shortest streaks), in time order; where more move as little
+    as the n-th, n evenly spread over those in time. Those whose travel is unknown (too few
+    centres near them) only where none is known: all of them spread evenly, and no travel."""
+    known = [(j, t) for j, t in enumerate(travel) if t is not None]
     if not known:
         return [seen[int(j)] for j in spread(np.arange(len(seen)), n)], None
     speed = np.array([float(np.hypot(*t)) for _, t in known])
@@ -627,7 +627,8 @@ def _measure(cam, in_air: list, in_water: list, hw: tuple[int, int], y_plane: fl
     notes = []
     if in_air or in_water:
         seen = in_air + in_water
-        picked, travel = sharpest(seen, centre, BOTTOM_UP_MAX_FRAMES)
+        travel_all = [travel_px(centre, s[0]) for s in seen]
+        picked, travel = sharpest(seen, travel_all, BOTTOM_UP_MAX_FRAMES)
         masks = []
         for f, (x0, y0, cw, ch), sil in picked:
             m = np.zeros(hw, bool)
@@ -636,11 +637,10 @@ def _measure(cam, in_air: list, in_water: list, hw: tuple[int, int], y_plane: fl
         # the shutter's share from the silhouettes in the air whose travel is known (the streaks say
         # it, the sharp ones measured hardly do; in free fall a parabola gives each frame's travel,
         # where the water's sudden drag does not), from all of them where fewer than two are
-        known = lambda group: [(_bbox_extent(sil), t) for (f, _, sil), t in ((s, travel_px(centre, s[0]))
-                                                                             for s in group) if t is not None]
-        moved = known(in_air)
-        if len(moved) < 2:
-            moved = known(seen)
+        moved = [(_bbox_extent(s[2]), t) for s, t in zip(seen, travel_all) if t is not None]
+        n_air = sum(t is not None for t in travel_all[:len(in_air)])   # (seen: the air's first)
+        if n_air >= 2:
+            moved = moved[:n_air]
         share = (exposure_share(np.array([e for e, _ in moved]), np.array([t for _, t in moved]))
                  if moved and max(float(np.max(t)) for _, t in moved) > EXTENT_SD_PX else None)
         kind_sizes = bottom_up(cam, masks, y_plane, m_per_px, travel, share)
