@@ -28,6 +28,7 @@ map's deadline (`timeout_s`) has passed (its workers are then killed).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -360,6 +361,26 @@ def _ignore_sigint() -> None:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
+@contextlib.contextmanager
+def _workers_born_deaf_to_sigterm():
+    """While the pool forks its workers: SIGTERM at the system's default in this process (the
+    main thread's to set; elsewhere nothing is changed), so that a forked worker is born with it.
+    The initializer sets it too, but a worker may wait its turn to run that while another answers
+    every ping, and a SIGTERM meanwhile ran the parent's raising handler in it (it then hung on
+    its way out). The parent's own handler is back as soon as the forks are made."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, before)
+
+
 def _ping(_=None) -> int:
     return os.getpid()
 
@@ -406,7 +427,9 @@ class LocalPool:
         self.context = context
         self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context(context), initializer=_ignore_sigint)
         try:
-            for f in [self._pool.submit(_ping) for _ in range(self.workers)]:
+            with _workers_born_deaf_to_sigterm():
+                futures = [self._pool.submit(_ping) for _ in range(self.workers)]   # forks them all
+            for f in futures:
                 f.result()
         except BrokenProcessPool as e:
             self._pool.shutdown(wait=True, cancel_futures=True)

@@ -200,6 +200,37 @@ def test_infer_progress_moves_per_sweep_and_the_chains_stay_the_same(frozen, mon
         assert np.array_equal(shown.proposals[k], v, equal_nan=v.dtype.kind == "f"), k
 
 
+def test_a_worker_is_born_with_sigterm_at_the_default(monkeypatch, tmp_path):
+    """Before its initializer runs (it may wait while another worker answers every ping), a forked
+    worker must already have SIGTERM at the system's default: with the parent's raising handler a
+    SIGTERM then left it hung on its way out (a CI run's worker outlived a 60 s join)."""
+    import signal
+
+    from galileo import runner
+    from galileo.errors import _terminated
+
+    real = runner._ignore_sigint
+
+    def born(_real=real, _dir=str(tmp_path)):
+        with open(os.path.join(_dir, str(os.getpid())), "w") as f:
+            f.write("default" if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL else "other")
+        _real()
+
+    monkeypatch.setattr(runner, "_ignore_sigint", born)
+    before = signal.signal(signal.SIGTERM, _terminated)
+    try:
+        pool = runner.LocalPool(2)
+        assert signal.getsignal(signal.SIGTERM) is _terminated   # the parent's own is back
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    try:
+        pids = pool.pids()
+    finally:
+        pool.shutdown()
+    assert sorted(os.listdir(tmp_path)) == sorted(map(str, pids))
+    assert {(tmp_path / str(p)).read_text() for p in pids} == {"default"}
+
+
 def test_a_worker_sent_sigterm_ends_at_once_without_the_parents_handler(capfd):
     """The CLI's SIGTERM handler (`galileo.errors`: raise, then one line) is the parent's: a forked
     worker must not inherit it, or the pool's SIGTERM to its workers raises in them and their
