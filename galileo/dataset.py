@@ -92,7 +92,7 @@ def _render_on_pool(spec: DatasetSpec, todo: list, out_dir: str, n_workers: int,
     galileo.sim.bullet), calling finished(video, entry, files) as each ends. No more videos are
     handed out than there are workers, so that on Ctrl-C (the parent's alone) or an error the
     build stops once the videos under way are done, and keeps them."""
-    from .runner import _ignore_sigint
+    from .runner import _ignore_sigint, _workers_born_deaf_to_sigterm
 
     pool = ProcessPoolExecutor(n_workers, mp_context=mp.get_context("fork"), initializer=_ignore_sigint)
     queue, running = iter(todo), {}
@@ -103,8 +103,9 @@ def _render_on_pool(spec: DatasetSpec, todo: list, out_dir: str, n_workers: int,
             running[pool.submit(_render, spec, video, out_dir)] = video
 
     try:
-        for _ in range(n_workers):
-            hand_out()
+        with _workers_born_deaf_to_sigterm():   # the first submit forks every worker
+            for _ in range(n_workers):
+                hand_out()
         while running:
             for fut in wait(running, return_when=FIRST_COMPLETED).done:
                 finished(running.pop(fut), *fut.result())

@@ -149,12 +149,6 @@ def _simulate_chunk(task) -> tuple[int, int, np.ndarray]:
     return index, start, np.stack(out)
 
 
-def _ignore_sigint():
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 def _workers(workers: int | None, n_tasks: int) -> int:
     n = int(workers) if workers else min(MAX_WORKERS, os.cpu_count() or 1)
     return max(1, min(n, n_tasks))
@@ -215,11 +209,14 @@ def simulate_training_set(scenario, pairs, *, sims: int = SIMS_PER_SCENE, seed: 
             import multiprocessing as mp
             from concurrent.futures.process import BrokenProcessPool
 
+            from ..runner import _ignore_sigint, _workers_born_deaf_to_sigterm
+
             # forked workers: each connects its own pybullet client (galileo.sim.bullet)
             ex = ProcessPoolExecutor(min(n_workers, len(tasks)), mp_context=mp.get_context("fork"),
                                      initializer=_ignore_sigint)
             try:
-                futures = [ex.submit(_simulate_chunk, t) for t in tasks]
+                with _workers_born_deaf_to_sigterm():   # the first submit forks every worker
+                    futures = [ex.submit(_simulate_chunk, t) for t in tasks]
                 for fut in as_completed(futures):
                     i, start, v = fut.result()
                     results[i, start] = v

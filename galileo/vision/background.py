@@ -188,13 +188,16 @@ def largest_area(mask: np.ndarray) -> int:
 
 def largest_component(mask: np.ndarray) -> np.ndarray | None:
     """The largest component as a filled convex silhouette; None if smaller than MIN_BLOB_PX."""
+    found = components(mask, 1)
+    return found[0] if found else None
+
+
+def components(mask: np.ndarray, most: int) -> list[np.ndarray]:
+    """The `most` largest components of at least MIN_BLOB_PX pixels, each as a filled convex
+    silhouette, largest first."""
     labels, area = _components(mask)
-    if len(area) <= 1:
-        return None
-    best = 1 + int(np.argmax(area[1:]))
-    if area[best] < MIN_BLOB_PX:
-        return None
-    return pixel_hull(labels == best)
+    order = 1 + np.argsort(-area[1:], kind="stable")
+    return [pixel_hull(labels == k) for k in order[:most] if area[k] >= MIN_BLOB_PX]
 
 
 def touching(mask: np.ndarray, where: np.ndarray) -> np.ndarray:

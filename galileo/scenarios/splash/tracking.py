@@ -96,7 +96,7 @@ from ...progress import tqdm
 from ...shapes import Box, Cylinder
 from ...video import VideoStream, write_video, yuv_to_rgb
 from ...vision.background import (MIN_BLOB_PX, MODEL_MAX_FRAMES, blobs, clean, dilate, erode, foreground, frames_at, full_res,
-                                  largest_component, mog2_background, noise_sd, not_the_scene, spread, work_scale,
+                                  components, largest_component, mog2_background, noise_sd, not_the_scene, spread, work_scale,
                                   yuv_image)
 from ...vision.draw import draw_tracks
 from ...vision.klt import flow, klt_window, seed_features
@@ -141,6 +141,11 @@ DISTRACTOR_NOTE = ("something moved where the object cannot be (a person walking
 AREA_OK = (0.6, 1.6)       # a silhouette is usable within these ratios of the fitted shape's area
 MAX_SPEED_MPS = 3.0        # a centre farther than this x the time since the last one from it is dropped
                            # (free fall from the highest release reaches ~2 m/s at the water)
+MAX_CANDIDATES = 4         # the largest components in the fall column a frame, tried nearest the predicted centre
+                           # first (a passer-by's shadow on the wall below a floater is larger than it)
+MAX_ACCEL_G = 2.0          # a silhouette's travel over a frame, for its swept area, at most the last speed plus
+                           # this x g x the frames since (a floater's buoyancy lifts it at up to ~2 g) ...
+TRAVEL_SLACK_PX = 2.0      # ... plus this (the centre's own error, the camera's residual shake)
 
 
 def _shape(kind: str, w: float, h: float):
@@ -449,13 +454,13 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
                 outside = fg & ~region
                 # (components only where enough is there: most frames of most videos have nothing outside)
                 elsewhere[0] = np.count_nonzero(outside) >= MIN_BLOB_PX and largest_component(outside) is not None
-            yield y, None if fg is None else largest_component(fg & region)
+            yield y, None if fg is None else components(fg & region, MAX_CANDIDATES)
 
     # the shape to centre silhouettes on: the first usable silhouettes
     first, first_frames = [], []
-    for f, (_, blob) in enumerate(silhouettes()):
-        if blob is not None:
-            first.append(blob)
+    for f, (_, blobs_f) in enumerate(silhouettes()):
+        if blobs_f:
+            first.append(blobs_f[0])
             first_frames.append(f)
             if len(first) == BOTTOM_UP_FRAMES:
                 break
@@ -487,11 +492,18 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     landed = False                                   # whether it reached the tank's floor (where it may tip over)
     bar.set_description("tracking 2/2: following the object", refresh=False)
     bar.reset(total=n)
-    for i, (gray, blob) in enumerate(silhouettes()):
+    accel_px = MAX_ACCEL_G * float(scene.gravity_mps2) / cam.fps ** 2 / m_per_px   # px / frame^2
+    for i, (gray, candidates) in enumerate(silhouettes()):
         bar.update()
         if not shown[i]:   # not the scene: nothing seen in it; tracking goes on from the last that was
             features.append(np.zeros((0, 2), np.float32))
             continue
+        dt = (i - i_prev) / cam.fps if c_prev is not None else 0.0
+        first_px = (None if c_prev is not None else early_travel(float(i)) if early_travel is not None
+                    else np.zeros(2))
+        blob, c, extent, travel, jumped = _choose(candidates, expected, c_prev, v_prev, i - i_prev, accel_px, first_px,
+                                                  lambda c_new: plausible(cam, y_plane, c_new, c_prev, dt))
+        jumps += jumped
         c_klt = None
         if i and len(pts) and c_prev is not None:
             win = klt_window(blob) if blob is not None else 9
@@ -508,20 +520,6 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
             else:
                 shift = None
             pts = new[ok]
-        c = None
-        if blob is not None:
-            c_box = _bbox_centre(blob)
-            area, off, extent = expected(c_box)
-            c_box = c_box + off
-            # at most the shape swept over a whole frame's travel (motion blur: a streak)
-            travel = (np.abs(c_box - c_prev) / (i - i_prev) if c_prev is not None
-                      else early_travel(float(i)) if early_travel is not None else np.zeros(2))
-            swept = area + travel[1] * extent[0] + travel[0] * extent[1]
-            if area and AREA_OK[0] * area <= blob.sum() <= AREA_OK[1] * swept:
-                c = c_box
-        dt = (i - i_prev) / cam.fps if c_prev is not None else 0.0
-        if c is not None and not plausible(cam, y_plane, c, c_prev, dt):
-            c, jumps = None, jumps + 1
         from_silhouette = c is not None
         if c is None and c_klt is not None and plausible(cam, y_plane, c_klt, c_prev, dt):
             c = c_klt
@@ -571,6 +569,56 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
                                   for f, (y, uv) in enumerate(_counted(video.yuv(), bar))), cam.fps)
     bar.close()
     return tracks
+
+
+def _choose(candidates, expected, c_prev, v_prev, frames_since: int, accel_px: float, first_travel_px,
+            plausible) -> tuple:
+    """The object's silhouette among a frame's `candidates` (the largest components in the fall
+    column): (the silhouette, its centre, its box extent, its travel over a frame (u, v px),
+    1 if one was dropped as a jump else 0); (the candidate nearest the prediction or None, None,
+    ...) where none is usable. Tried nearest the centre predicted at constant velocity first
+    (the last centre without one); usable: its area within AREA_OK of the fitted shape's, the
+    upper bound swept over its travel (motion blur: a streak), and `plausible(centre)`. Its travel
+    is its own jump from the last centre, per frame, at most the last speed plus MAX_ACCEL_G x g
+    over the frames since, plus TRAVEL_SLACK_PX (a shadow's or a merged blob's jump would
+    otherwise excuse its size); `first_travel_px` without a last centre. A candidate that is not
+    usable but whose box holds the last centre or the predicted one is the object, unusable
+    here: no candidate farther away is tried (a floor-hidden sinker's small silhouette, with a
+    shadow on the wall above it that its size and a long gap since would let pass)."""
+    if not candidates:
+        return None, None, None, None, 0
+    if c_prev is not None:
+        pred = c_prev + frames_since * v_prev
+        candidates = sorted(candidates, key=lambda b: float(np.linalg.norm(_bbox_centre(b) - pred)))
+    jumped = 0
+    for blob in candidates:
+        c_box = _bbox_centre(blob)
+        area, off, extent = expected(c_box)
+        c_box = c_box + off
+        here = c_prev is not None and any(_covers(blob, p) for p in (c_prev, pred))
+        if c_prev is not None:
+            most = np.abs(v_prev) + accel_px * frames_since + TRAVEL_SLACK_PX
+            travel = np.minimum(np.abs(c_box - c_prev) / frames_since, most)
+        else:
+            travel = np.asarray(first_travel_px, float)
+        swept = area + travel[1] * extent[0] + travel[0] * extent[1]
+        if not (area and AREA_OK[0] * area <= blob.sum() <= AREA_OK[1] * swept):
+            if here:   # the object is there, its silhouette unusable: no other is it
+                break
+            continue
+        if not plausible(c_box):
+            jumped = 1
+            continue
+        return blob, c_box, extent, travel, 0
+    return candidates[0], None, None, None, jumped
+
+
+def _covers(blob: np.ndarray, uv: np.ndarray) -> bool:
+    """Whether the silhouette's bounding box, grown by TRAVEL_SLACK_PX, holds image point uv."""
+    rows, cols = np.flatnonzero(blob.any(axis=1)), np.flatnonzero(blob.any(axis=0))
+    u, v = float(uv[0]), float(uv[1])
+    return (cols[0] - TRAVEL_SLACK_PX <= u <= cols[-1] + TRAVEL_SLACK_PX
+            and rows[0] - TRAVEL_SLACK_PX <= v <= rows[-1] + TRAVEL_SLACK_PX)
 
 
 def _counted(frames, bar):
