@@ -17,8 +17,10 @@
    MODEL_MAX_FRAMES frames, evenly spaced, at most 0.5 Mpx each.) A frame most of which
    differs from frame 0 (noise, a cut: `not_the_scene`) is left out of it, no object is
    seen in it, and tracking goes on from the last frame that showed the tank.
-2. Foreground per frame against it: the object (its largest component), in air or water
-   (the water's tint is in the background too).
+2. Foreground per frame against it, in air or water (the water's tint is in the background
+   too): the object is one of its MAX_CANDIDATES largest components, the usable one nearest
+   the centre predicted from its last (`_choose`; step 4 says what is usable). The largest
+   would be a passer-by's shadow on the wall below a floater or beside a sinker.
 3. KLT (`galileo.vision.klt`): good features inside the frame-0 silhouette, Lucas-Kanade
    from a constant-velocity guess with a forward-backward check, features that leave the
    foreground dropped, re-seeded inside the foreground when fewer than half survive (the
@@ -27,7 +29,8 @@
    by the offset between the fitted 3-D shape's projected centre and its silhouette's
    box centre (the camera sees the top face too); where the silhouette is not usable
    (too small against the fitted shape's, or too large against it swept over the frame's
-   travel: a motion-blurred silhouette is a streak; or missing) the KLT motion of the
+   travel, at most the last speed plus MAX_ACCEL_G x g since: a motion-blurred silhouette is
+   a streak; or missing) the KLT motion of the
    features carries the last centre on. A centre farther from the last one than the
    object could move in the time between them (MAX_SPEED_MPS on the release plane) is
    dropped, the frame left without one. Back-projected onto the plane y = release_m[1]
