@@ -74,7 +74,8 @@ def test_debug_video_is_written(tmp_path):
 def test_a_lone_component_below_the_water_line_is_where_the_object_rests():
     """Frame 0 against the late background shows only one component (a light object against a
     light wall does not show in the air): below the water line it is where the object comes to
-    rest, above it where it starts; with two, the higher one is the start."""
+    rest, above it where it starts; with two, the higher one is the start, with the pieces beside it
+    above the water."""
     from galileo.scenarios.splash.tracking import _start_and_rest
 
     fg = np.zeros((100, 100), bool)
@@ -86,6 +87,14 @@ def test_a_lone_component_below_the_water_line_is_where_the_object_rests():
     fg[10:30, 40:60] = True
     start, rest = _start_and_rest(fg, 50.0)
     assert start[20, 50] and not start[80, 50] and rest[80, 50] and not rest[20, 50]
+    # a streak broken in two beside each other (a falling coin's, a handheld video): both are the start
+    # (the lower piece was taken for the resting place, and the background kept it: the coin was
+    # tracked there, never entering the water); a ripple at the water line is the resting place's
+    fg[12:28, 62:75] = True
+    fg[46:54, 8:22] = True
+    start, rest = _start_and_rest(fg, 50.0)
+    assert start[20, 50] and start[20, 70] and not start[80, 50] and not start[50, 15]
+    assert rest[80, 50] and rest[50, 15] and not rest[20, 70]
 
 
 @pytest.mark.parametrize("kind, volume_cm3", [("hcyl", 5.0), ("vcyl", 4.0)])

@@ -157,7 +157,7 @@ def test_the_object_is_the_usable_candidate_nearest_its_prediction():
         return 400, np.zeros(2), np.array([20.0, 20.0])
 
     def choose(cands, plausible=lambda c: True):
-        blob, c, *_ = _choose(cands, expected, np.array([100.0, 100.0]), np.zeros(2), 4, 2.0, None, plausible)
+        blob, c, *_ = _choose(cands, expected, np.array([100.0, 100.0]), np.zeros(2), 4, 2.0, plausible)
         return blob, c
 
     obj, shadow, part = box(90, 90, 20, 20), box(70, 220, 60, 60), box(92, 95, 14, 12)

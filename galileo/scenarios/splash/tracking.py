@@ -207,8 +207,8 @@ def _kind_sizes(cam, masks: list[np.ndarray], y_plane: float):
     return {k: np.array(v) for k, v in losses.items()}, {k: np.array(v) for k, v in sizes.items()}
 
 
-def first_travel(masks: list[np.ndarray], frames: list[int]):
-    """travel(f) -> (n, 2) |du|, |dv| px a frame at frames f: the slope of a curve (a parabola
+def first_velocity(masks: list[np.ndarray], frames: list[int]):
+    """velocity(f) -> (n, 2) du, dv px a frame at frames f: the slope of a curve (a parabola
     through three or more, a line through two) through the silhouettes' box centres at their
     frames (a streak's centre is the object's at the frame's time); None from fewer than two."""
     if len(set(frames)) != len(frames) or len(frames) < 2:
@@ -216,7 +216,7 @@ def first_travel(masks: list[np.ndarray], frames: list[int]):
     f = np.asarray(frames, float)
     coef = np.polyfit(f, np.array([_bbox_centre(m) for m in masks]), min(len(f) - 1, 2))   # (deg + 1, 2)
     slope = [np.polyder(coef[:, a]) for a in range(2)]
-    return lambda at: np.abs(np.stack([np.polyval(slope[a], at) for a in range(2)], axis=-1))
+    return lambda at: np.stack([np.polyval(slope[a], at) for a in range(2)], axis=-1)
 
 
 def first_guess(cam, masks: list[np.ndarray], y_plane: float, m_per_px: float,
@@ -229,9 +229,9 @@ def first_guess(cam, masks: list[np.ndarray], y_plane: float, m_per_px: float,
     in the water, would look too small against it to be taken for itself."""
     losses, sizes = _kind_sizes(cam, masks, y_plane)
     if frames is not None:
-        travel = first_travel(masks, frames)
-        if travel is not None:
-            sizes = _unblurred(sizes, masks, travel(np.asarray(frames, float)), m_per_px)[0]
+        velocity = first_velocity(masks, frames)
+        if velocity is not None:
+            sizes = _unblurred(sizes, masks, np.abs(velocity(np.asarray(frames, float))), m_per_px)[0]
     kind = min(KINDS, key=lambda k: float(losses[k].mean()))
     w, h = np.median(sizes[kind], axis=0)
     return kind, float(w), float(h)
@@ -346,7 +346,8 @@ def _start_and_rest(fg: np.ndarray, water_row: float) -> tuple[np.ndarray | None
     foreground that shows the object at both (an early frame against a late one, or against
     a background that holds one of them). The object starts at or near its release point,
     above the water (held there, or falling through the air), and comes to rest in the water:
-    the highest component is the start, the others are the resting place. A lone component
+    the highest component is the start, with those above the water beside it (sharing its rows:
+    a motion-blurred streak breaks into pieces), the others are the resting place. A lone component
     (the other did not show: a light object against a light wall) is the resting place if it
     reaches below the water line (image row `water_row` at the release point), else the start.
     None for either that does not show."""
@@ -356,8 +357,11 @@ def _start_and_rest(fg: np.ndarray, water_row: float) -> tuple[np.ndarray | None
     rows = [np.nonzero(c.any(axis=1))[0] for c in comps]
     if len(comps) == 1:
         return (None, comps[0]) if rows[0][-1] > water_row else (comps[0], None)
-    start = int(np.argmin([r[0] for r in rows]))
-    return comps[start], np.any([c for j, c in enumerate(comps) if j != start], axis=0)
+    top = rows[int(np.argmin([r[0] for r in rows]))]
+    # the start: the highest, with the pieces beside it above the water (a blurred streak breaks up)
+    start = [j for j, r in enumerate(rows) if r[-1] < water_row and r[0] <= top[-1] and r[-1] >= top[0]]
+    rest = [c for j, c in enumerate(comps) if j not in start]
+    return np.any([comps[j] for j in start], axis=0), (np.any(rest, axis=0) if rest else None)
 
 
 def background(sample: list[np.ndarray], early: list[np.ndarray], late: list[np.ndarray], noise: float,
@@ -376,8 +380,8 @@ def background(sample: list[np.ndarray], early: list[np.ndarray], late: list[np.
     bg = mog2_background(sample, reverse=True)
     first, last = early[0], np.median(np.stack(late), axis=0).astype(bg.dtype)
     start, rest = _start_and_rest(clean(foreground(first, last, noise)) > 0, water_row)
-    if start is not None and rest is not None:   # (one blob: the object did not move far)
-        zone = dilate(start, END_ZONE_PX) & ~dilate(rest, END_ZONE_PX)
+    if start is not None:   # (the resting place may not show against the last frames: a coin on the floor)
+        zone = dilate(start, END_ZONE_PX) & (~dilate(rest, END_ZONE_PX) if rest is not None else True)
         bg[zone] = last[zone]
     rest = _start_and_rest(clean(foreground(first, bg, noise)) > 0, water_row)[1]
     if rest is None:
@@ -471,7 +475,7 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
         bar.close()
         raise StillVideo(f"nothing moves in {video_path}: no object against the tank's background")
     kind, w, h = first_guess(cam, first, y_plane, m_per_px, first_frames)
-    early_travel = first_travel(first, first_frames)
+    early_velocity = first_velocity(first, first_frames)
     shape, rot = _shape(kind, w, h)
 
     def expected(uv):
@@ -486,6 +490,8 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     centre = np.full((n, 2), np.nan)
     pts = np.zeros((0, 2), np.float32)
     c_prev, v_prev, i_prev = None, np.zeros(2), -1   # the last centre, its velocity (px/frame), its frame
+    v_known = False                                  # whether v_prev was measured (two centres), else the
+                                                     # first silhouettes' curve gives the velocity
     shift = np.zeros(2)                              # the features' motion since frame i_prev
     features = []
     prev, last = None, 0                             # the last frame that shows the scene
@@ -502,15 +508,15 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
             features.append(np.zeros((0, 2), np.float32))
             continue
         dt = (i - i_prev) / cam.fps if c_prev is not None else 0.0
-        first_px = (None if c_prev is not None else early_travel(float(i)) if early_travel is not None
-                    else np.zeros(2))
-        blob, c, extent, travel, jumped = _choose(candidates, expected, c_prev, v_prev, i - i_prev, accel_px, first_px,
+        v_guess = (v_prev if v_known else early_velocity(float(i)) if early_velocity is not None
+                   else np.zeros(2))
+        blob, c, extent, travel, jumped = _choose(candidates, expected, c_prev, v_guess, i - i_prev, accel_px,
                                                   lambda c_new: plausible(cam, y_plane, c_new, c_prev, dt))
         jumps += jumped
         c_klt = None
         if i and len(pts) and c_prev is not None:
             win = klt_window(blob) if blob is not None else 9
-            new, ok = flow(prev, gray, pts, pts + ((i - last) * v_prev).astype(np.float32), win)
+            new, ok = flow(prev, gray, pts, pts + ((i - last) * v_guess).astype(np.float32), win)
             if blob is not None:
                 inside = dilate(blob, 5)
                 ij = np.round(new).astype(int)
@@ -528,7 +534,7 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
             c = c_klt
         if c is not None:
             if c_prev is not None:
-                v_prev = (c - c_prev) / (i - i_prev)
+                v_prev, v_known = (c - c_prev) / (i - i_prev), True
             centre[i] = c_prev = c
             i_prev, shift = i, np.zeros(2)
             bottom_m = backproject_to_plane(cam, c[None], y_plane)[0, 2] - h / 2
@@ -574,8 +580,7 @@ def track(video_path: str | Path, scene, *, progress: bool = True, debug_video=N
     return tracks
 
 
-def _choose(candidates, expected, c_prev, v_prev, frames_since: int, accel_px: float, first_travel_px,
-            plausible) -> tuple:
+def _choose(candidates, expected, c_prev, v_prev, frames_since: int, accel_px: float, plausible) -> tuple:
     """The object's silhouette among a frame's `candidates` (the largest components in the fall
     column): (the silhouette, its centre, its box extent, its travel over a frame (u, v px),
     1 if one was dropped as a jump else 0); (the candidate nearest the prediction or None, None,
@@ -584,7 +589,8 @@ def _choose(candidates, expected, c_prev, v_prev, frames_since: int, accel_px: f
     upper bound swept over its travel (motion blur: a streak), and `plausible(centre)`. Its travel
     is its own jump from the last centre, per frame, at most the last speed plus MAX_ACCEL_G x g
     over the frames since, plus TRAVEL_SLACK_PX (a shadow's or a merged blob's jump would
-    otherwise excuse its size); `first_travel_px` without a last centre. A candidate that is not
+    otherwise excuse its size); |v_prev| without a last centre. `v_prev` is the last velocity
+    measured, or before two centres the first silhouettes' (`first_velocity`). A candidate that is not
     usable but whose box holds the last centre or the predicted one is the object, unusable
     here: no candidate farther away is tried (a floor-hidden sinker's small silhouette, with a
     shadow on the wall above it that its size and a long gap since would let pass)."""
@@ -603,7 +609,7 @@ def _choose(candidates, expected, c_prev, v_prev, frames_since: int, accel_px: f
             most = np.abs(v_prev) + accel_px * frames_since + TRAVEL_SLACK_PX
             travel = np.minimum(np.abs(c_box - c_prev) / frames_since, most)
         else:
-            travel = np.asarray(first_travel_px, float)
+            travel = np.abs(v_prev)
         swept = area + travel[1] * extent[0] + travel[0] * extent[1]
         if not (area and AREA_OK[0] * area <= blob.sum() <= AREA_OK[1] * swept):
             if here:   # the object is there, its silhouette unusable: no other is it
