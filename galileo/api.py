@@ -492,6 +492,14 @@ def calibrate(scenario: str, out: str | Path, *, n: int | None = None, videos: s
     """Simulation-based calibration (`galileo calibrate`): `n` simulations from the prior, each
     inferred, their ranks and interval coverage (OUT/sbc.json and figures); or, with `videos` (a
     rendered dataset), interval coverage on its videos. The report as a dict."""
+    return _calibrate(scenario, out, n=n, videos=videos, draws=draws, scenes=scenes, seed=seed, chains=chains,
+                      sweeps=sweeps, workers=workers, moves=moves, until_rhat=until_rhat, max_sweeps=max_sweeps,
+                      progress=progress, spell=lambda name: name)
+
+
+def _calibrate(scenario: str, out: str | Path, *, n, videos, draws, scenes, seed, chains, sweeps, workers, moves,
+               until_rhat, max_sweeps, progress, spell) -> dict:
+    """`calibrate`, its errors naming each argument as `spell(name)` does (the CLI: its flags)."""
     from . import registry
     from .calibrate import DEFAULT_CHAINS, DEFAULT_DRAWS, DEFAULT_SWEEPS, coverage_on_videos, sbc
 
@@ -499,23 +507,25 @@ def calibrate(scenario: str, out: str | Path, *, n: int | None = None, videos: s
     sweeps = DEFAULT_SWEEPS if sweeps is None else sweeps
     draws = DEFAULT_DRAWS if draws is None else draws
     moves = moves_for(registry.get(scenario), moves, until_rhat, sweeps)   # an unknown scenario fails here, named
-    for what, v, lo in (("chains", chains, 1), ("sweeps", sweeps, 1), ("draws", draws, 1), ("workers", workers, 1),
-                        ("seed", seed, 0), ("n", n, 1)):
+    for what, v, lo in (("chains", chains, 1), ("sweeps", sweeps, 1), ("draws", draws, 1),
+                        ("workers", workers, 1), ("seed", seed, 0), ("n", n, 1)):
         if v is not None and v < lo:
-            raise GalileoError(f"{what} must be at least {lo}, got {v}")
+            raise GalileoError(f"{spell(what)} must be at least {lo}, got {v}")
     if max_sweeps is not None and until_rhat is None:
-        raise GalileoError("max_sweeps is the budget of until_rhat; without it, give sweeps")
+        raise GalileoError(f"{spell('max_sweeps')} is the budget of {spell('until_rhat')}; without it, give "
+                           f"{spell('sweeps')}")
     common = dict(seed=seed, chains=chains, sweeps=sweeps, workers=workers, moves=moves, until_rhat=until_rhat,
                   max_sweeps=max_sweeps, progress=progress)
     if (n is None) == (videos is None):
-        raise GalileoError("give either n (simulations from the prior) or videos (a rendered dataset)")
+        raise GalileoError(f"give either {spell('n')} (simulations from the prior) or {spell('videos')} (a rendered "
+                           f"dataset){', not both' if n is not None else ''}")
     if videos is not None:
         if not Path(videos).is_dir():
-            raise GalileoError(f"videos: dataset folder not found: {videos}")
+            raise GalileoError(f"{spell('videos')}: dataset folder not found: {videos}")
         return coverage_on_videos(videos, out, **common)
     scene = None
     if scenes not in ("default", "dataset"):
         scene = load_scene(scenes)
         if scene.scenario != scenario:
-            raise GalileoError(f"scenes {scenes}: a {scene.scenario} scene, not {scenario}")
+            raise GalileoError(f"{spell('scenes')} {scenes}: a {scene.scenario} scene, not {scenario}")
     return sbc(scenario, n, out, draws=draws, scenes=scenes, scene=scene, **common)

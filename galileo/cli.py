@@ -715,25 +715,14 @@ def cmd_scene(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from . import api, registry
-    from .calibrate import DEFAULT_SWEEPS, coverage_on_videos, sbc
+    from . import api
 
-    moves = api.moves_for(registry.get(args.scenario), args.moves, args.until_rhat,
-                          DEFAULT_SWEEPS if args.sweeps is None else args.sweeps)   # an unknown scenario fails
-    for what, v, lo in (("--chains", args.chains, 1), ("--sweeps", args.sweeps, 1), ("--draws", args.draws, 1),
-                        ("--workers", args.workers, 1), ("--seed", args.seed, 0)):
-        if v is not None and v < lo:
-            raise GalileoError(f"{what} must be at least {lo}, got {v}")
-    if args.max_sweeps is not None and args.until_rhat is None:
-        raise GalileoError("--max-sweeps is the budget of --until-rhat; without it, use --sweeps")
-    common = dict(seed=args.seed, chains=args.chains, sweeps=args.sweeps, workers=args.workers, moves=moves,
-                  until_rhat=args.until_rhat, max_sweeps=args.max_sweeps, progress=not args.quiet)
+    # the API's checks, its errors naming the flags
+    report = api._calibrate(args.scenario, args.out, n=args.n, videos=args.videos, draws=args.draws, scenes=args.scenes,
+                            seed=args.seed, chains=args.chains, sweeps=args.sweeps, workers=args.workers,
+                            moves=args.moves, until_rhat=args.until_rhat, max_sweeps=args.max_sweeps,
+                            progress=not args.quiet, spell=lambda name: "--" + name.replace("_", "-"))
     if args.videos is not None:
-        if args.n is not None:
-            raise GalileoError("give either --n N (simulations) or --videos DIR (a rendered dataset), not both")
-        if not Path(args.videos).is_dir():
-            raise GalileoError(f"--videos: dataset folder not found: {args.videos}")
-        report = coverage_on_videos(args.videos, args.out, **common)
         for k, c in report["coverage"].items():
             parts = [f"{float(a):.0%}: " + ("n/a" if c[a]["coverage"] is None else
                                             f"{c[a]['coverage']:.0%} ({c[a]['covered']}/{c[a]['n']})") for a in c]
@@ -742,16 +731,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             print(f"failed: {len(report['failed'])} video(s): " + "; ".join(f"{f['name']}: {f['error']}"
                                                                             for f in report["failed"]))
     else:
-        if args.n is None:
-            raise GalileoError("give --n N (simulations from the prior) or --videos DIR (a rendered dataset)")
-        if args.n < 1:
-            raise GalileoError(f"--n must be at least 1, got {args.n}")
-        scene, scenes = None, args.scenes
-        if scenes not in ("default", "dataset"):
-            scene = registry.load_scene(scenes)   # a scene file: every simulation in that scene
-            if scene.scenario != args.scenario:
-                raise GalileoError(f"--scenes {scenes}: a {scene.scenario} scene, not {args.scenario}")
-        report = sbc(args.scenario, args.n, args.out, draws=args.draws, scenes=scenes, scene=scene, **common)
         for k, q in report["quantities"].items():
             cov = q["coverage"]
             print(f"{k}: uniformity p = {q['p_value']:.3g} (chi2 {q['p_chi2']:.3g}); coverage 50%: "

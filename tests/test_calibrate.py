@@ -176,7 +176,10 @@ def test_a_scenario_without_synthetic_observations_says_so(tmp_path, monkeypatch
 @pytest.mark.parametrize("args, needle", [
     (["--n", "0"], "--n must be at least 1"),
     (["--videos", "/nonexistent/dataset"], "dataset folder not found"),
-    ([], "give --n N"),
+    ([], "give either --n (simulations from the prior) or --videos (a rendered dataset)"),
+    (["--n", "3", "--videos", "."], "or --videos (a rendered dataset), not both"),
+    (["--n", "3", "--max-sweeps", "50"], "--max-sweeps is the budget of --until-rhat"),
+    (["--n", "3", "--chains", "0"], "--chains must be at least 1"),
     (["--n", "3", "--scenes", "nowhere.json"], "not found"),
 ])
 def test_calibrate_cli_errors_are_one_line_exit_2(tmp_path, capsys, args, needle):
