@@ -95,6 +95,12 @@ def test_a_lone_component_below_the_water_line_is_where_the_object_rests():
     start, rest = _start_and_rest(fg, 50.0)
     assert start[20, 50] and start[20, 70] and not start[80, 50] and not start[50, 15]
     assert rest[80, 50] and rest[50, 15] and not rest[20, 70]
+    # the highest reaching below the water line (an object already entering it at frame 0) is still the start
+    fg = np.zeros((100, 100), bool)
+    fg[40:60, 40:60] = True
+    fg[80:95, 40:60] = True
+    start, rest = _start_and_rest(fg, 50.0)
+    assert start[45, 50] and not start[90, 50] and rest[90, 50] and not rest[45, 50]
 
 
 @pytest.mark.parametrize("kind, volume_cm3", [("hcyl", 5.0), ("vcyl", 4.0)])

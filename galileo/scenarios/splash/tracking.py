@@ -357,9 +357,11 @@ def _start_and_rest(fg: np.ndarray, water_row: float) -> tuple[np.ndarray | None
     rows = [np.nonzero(c.any(axis=1))[0] for c in comps]
     if len(comps) == 1:
         return (None, comps[0]) if rows[0][-1] > water_row else (comps[0], None)
-    top = rows[int(np.argmin([r[0] for r in rows]))]
+    k = int(np.argmin([r[0] for r in rows]))
+    top = rows[k]
     # the start: the highest, with the pieces beside it above the water (a blurred streak breaks up)
-    start = [j for j, r in enumerate(rows) if r[-1] < water_row and r[0] <= top[-1] and r[-1] >= top[0]]
+    start = [j for j, r in enumerate(rows)
+             if j == k or (r[-1] < water_row and r[0] <= top[-1] and r[-1] >= top[0])]
     rest = [c for j, c in enumerate(comps) if j not in start]
     return np.any([comps[j] for j in start], axis=0), (np.any(rest, axis=0) if rest else None)
 
