@@ -598,15 +598,15 @@ def _choose(candidates, expected, c_prev, v_prev, frames_since: int, accel_px: f
     shadow on the wall above it that its size and a long gap since would let pass)."""
     if not candidates:
         return None, None, None, None, 0
+    boxed = [(blob, _bbox_centre(blob)) for blob in candidates]
     if c_prev is not None:
         pred = c_prev + frames_since * v_prev
-        candidates = sorted(candidates, key=lambda b: float(np.linalg.norm(_bbox_centre(b) - pred)))
+        boxed.sort(key=lambda bc: float(np.linalg.norm(bc[1] - pred)))
     jumped = 0
-    for blob in candidates:
-        c_box = _bbox_centre(blob)
-        area, off, extent = expected(c_box)
-        c_box = c_box + off
-        here = c_prev is not None and any(_covers(blob, p) for p in (c_prev, pred))
+    for blob, box_centre in boxed:
+        area, off, extent = expected(box_centre)
+        c_box = box_centre + off
+        here = c_prev is not None and any(_covers(blob, box_centre, p) for p in (c_prev, pred))
         if c_prev is not None:
             most = np.abs(v_prev) + accel_px * frames_since + TRAVEL_SLACK_PX
             travel = np.minimum(np.abs(c_box - c_prev) / frames_since, most)
@@ -621,15 +621,14 @@ def _choose(candidates, expected, c_prev, v_prev, frames_since: int, accel_px: f
             jumped = 1
             continue
         return blob, c_box, extent, travel, 0
-    return candidates[0], None, None, None, jumped
+    return boxed[0][0], None, None, None, jumped
 
 
-def _covers(blob: np.ndarray, uv: np.ndarray) -> bool:
-    """Whether the silhouette's bounding box, grown by TRAVEL_SLACK_PX, holds image point uv."""
-    rows, cols = np.flatnonzero(blob.any(axis=1)), np.flatnonzero(blob.any(axis=0))
-    u, v = float(uv[0]), float(uv[1])
-    return (cols[0] - TRAVEL_SLACK_PX <= u <= cols[-1] + TRAVEL_SLACK_PX
-            and rows[0] - TRAVEL_SLACK_PX <= v <= rows[-1] + TRAVEL_SLACK_PX)
+def _covers(blob: np.ndarray, box_centre: np.ndarray, uv: np.ndarray) -> bool:
+    """Whether the silhouette's bounding box (centred at `box_centre`), grown by TRAVEL_SLACK_PX,
+    holds image point uv."""
+    half = (_bbox_extent(blob) - 1) / 2 + TRAVEL_SLACK_PX
+    return bool(np.all(np.abs(np.asarray(uv, float) - box_centre) <= half))
 
 
 def _counted(frames, bar):
