@@ -227,6 +227,47 @@ def test_fitted_independence_samples_its_target_and_fails_without_its_hastings_f
     assert stats.kstest(np.log(bad[:, 0]), stats.norm(math.log(0.3), 0.2).cdf).pvalue < 1e-6
 
 
+def test_fitted_conditionals_sample_their_target_and_fail_without_their_hastings_factor():
+    """Each latent redrawn from the conditional of the same off-centre, too narrow q given the
+    other (conditional moves alone): the chain samples the correlated target, its log m with the
+    log map's Jacobian; without the factor it keeps q's bias."""
+    from galileo.mcmc import FittedIndependence, conditionals_of
+
+    bounds = [(1e-3, 5.0), (-1.0, 2.0)]
+    q = FittedIndependence((0, 1), (0,), (math.log(0.3) + 0.1, 0.45), ((0.1, 0.0), (0.045, 0.022)),
+                           tuple(map(tuple, bounds)))
+    moves = conditionals_of(q)
+    assert [m.site for m in moves] == [0, 1] and [m.log for m in moves] == [True, False]
+    good = _chain(_corr_logdensity, [0.5, 0.5], bounds, moves)
+    assert stats.kstest(np.log(good[:, 0]), stats.norm(math.log(0.3), 0.2).cdf).pvalue > 1e-3
+    assert stats.kstest(good[:, 1], stats.norm(0.4, 0.1).cdf).pvalue > 1e-3
+    assert abs(np.corrcoef(np.log(good[:, 0]), good[:, 1])[0, 1] - 0.9) < 0.03     # CORR's correlation
+    bad = _chain(_corr_logdensity, [0.5, 0.5], bounds, moves, hastings=False)
+    assert stats.kstest(np.log(bad[:, 0]), stats.norm(math.log(0.3), 0.2).cdf).pvalue < 1e-6
+
+
+def test_a_fitted_conditional_is_the_t_conditional_of_q():
+    """Its centre and scale against the closed form of a bivariate t's conditional (regression on
+    the other coordinate; scale grown with the other's Mahalanobis distance), and its density a
+    univariate t in the latent's log with the Jacobian."""
+    from galileo.mcmc import FittedIndependence, conditionals_of
+
+    L = np.array([[0.2, 0.0], [0.06, 0.08]])
+    S = L @ L.T
+    q = FittedIndependence((0, 1), (0,), (math.log(0.3), 0.4), tuple(map(tuple, L)), ((1e-3, 5.0), (-1.0, 2.0)),
+                           df=5.0)
+    c0 = conditionals_of(q)[0]
+    x = np.array([0.7, 0.55])
+    given = c0._given(x)
+    logw, (centre,), (scale,), dof = given
+    d2 = (0.55 - 0.4) ** 2 / S[1, 1]
+    assert dof == 6.0 and logw.tolist() == [0.0]
+    assert centre == pytest.approx(math.log(0.3) + S[0, 1] / S[1, 1] * 0.15)
+    assert scale == pytest.approx(math.sqrt((5.0 + d2) / 6.0 * (S[0, 0] - S[0, 1] ** 2 / S[1, 1])))
+    v = 0.45
+    assert c0._logq(v, given) == pytest.approx(stats.t(dof, loc=centre, scale=scale).logpdf(math.log(v)) - math.log(v))
+
+
 def test_fitted_independence_density_is_its_mixture_in_the_latents_own_space():
     """In one log site: the density integrates over the box to the t's mass there (its log's CDF,
     scipy's) times the weight plus the defensive uniform's share."""

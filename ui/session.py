@@ -375,6 +375,9 @@ def move_from_json(d: dict, dim: int):
             if k in ("name", "kinds"):
                 if not isinstance(x, str):
                     raise ValueError(f"joint move {d['type']}: {k} must be text, got {x!r}")
+            elif k in ("log", "others_log"):     # FittedConditional's flags
+                if not isinstance(x, bool):
+                    raise ValueError(f"joint move {d['type']}: {k} must be true or false, got {x!r}")
             elif isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
                 raise ValueError(f"joint move {d['type']}: {k} must be finite numbers, got {v!r:.80}")
     sites = tuple(getattr(move, "sites", ()) or ()) + tuple(getattr(move, "log_sites", ()) or ())
