@@ -31,6 +31,7 @@ import numpy as np
 
 from .errors import GalileoError
 
+DEFAULT_MAX_SECONDS = 120.0   # `infer`'s wall-clock budget when it runs until converged by default (issue 30)
 WIDTH_RANGES = 100   # a proposal width at most this many times its latent's prior range
 UNIT_SUFFIXES = (("_g_cm3", "g/cm^3"), ("_cm3", "cm^3"), ("_kg", "kg"), ("_Nspm", "N s/m"), ("_Npm", "N/m"),
                  ("_mps", "m/s"), ("_m", "m"), ("_s", "s"), ("_deg", "deg"), ("_px", "px"))
@@ -92,6 +93,28 @@ def moves_for(scenario, moves: str | None, until_rhat: float | None, sweeps: int
             sweeps=sweeps, until_rhat=until_rhat, warmup=warmup).warmup_sweeps() < FITTED_MIN_WARMUP:
         return "default"
     return scenario.converge_moves
+
+
+def until_converged(sweeps: int | None, until_rhat: float | None, max_sweeps: int | None,
+                    max_seconds: float | None, names: dict | None = None) -> tuple[float | None, float | None]:
+    """`infer`'s rule for what to run, as (until_rhat, max_seconds): without `sweeps` and
+    `until_rhat`, until converged (every latent's R-hat <= RHAT_TARGET and ESS >= min_ess) after a
+    first block of the scenario's protocol; `sweeps` alone, a fixed run of that many sweeps (the
+    paper's protocol: 75), its budgets refused. Running until converged has a wall-clock
+    budget, DEFAULT_MAX_SECONDS unless given. `names` words the error for the CLI's flags."""
+    from .results import RHAT_TARGET
+
+    name = {"sweeps": "sweeps", "until_rhat": "until_rhat", "max_sweeps": "max_sweeps",
+            "max_seconds": "max_seconds", **(names or {})}
+    if until_rhat is None and sweeps is not None:
+        for what, given in (("max_sweeps", max_sweeps), ("max_seconds", max_seconds)):
+            if given is not None:
+                raise GalileoError(f"{name[what]} is a budget of running until converged; {name['sweeps']} "
+                                   f"{sweeps} alone is a fixed run (add {name['until_rhat']} to run on from it "
+                                   "until converged)")
+        return None, None
+    return (RHAT_TARGET if until_rhat is None else until_rhat,
+            DEFAULT_MAX_SECONDS if max_seconds is None else max_seconds)
 
 
 def run_config(scenario, *, chains: int | None = None, sweeps: int | None = None, seed: int = 0,
@@ -158,9 +181,12 @@ def infer(scene, observed, *, tracks=None, share: Sequence[str] = (), fix: dict 
     video); `tracks`: the video's tracks made already (`galileo infer --tracks`), the video then read
     only by `init` recognition. Several videos as one problem: lists of scenes and of videos/tracks, with `share` (latents
     with one value for all) and `fix` ({name: value}: NAME in every video, NAME@2 in video 2 only).
-    The other settings are `galileo infer`'s flags (`chains`, `sweeps`: the scenario's protocol by
-    default; `moves`: default|paper|fitted, else `moves_for`'s; `until_rhat` with its budgets
-    `max_sweeps`, `max_seconds`; `sigma` in the scenario's noise unit; `init`: prior|recognition)."""
+    The other settings are `galileo infer`'s flags (`chains`: the scenario's protocol by default;
+    `moves`: default|paper|fitted, else `moves_for`'s; `sigma` in the scenario's noise unit;
+    `init`: prior|recognition). What runs (`until_converged`): by default until converged (every
+    latent's R-hat <= 1.01, bulk and tail ESS >= `min_ess`) from a first block of the protocol's
+    sweeps, within `max_sweeps` and `max_seconds` (DEFAULT_MAX_SECONDS, 120); `sweeps` alone is a
+    fixed run of that many sweeps; `until_rhat` with `sweeps` runs on from them."""
     from . import registry
     from .runner import infer as run
 
@@ -184,6 +210,7 @@ def infer(scene, observed, *, tracks=None, share: Sequence[str] = (), fix: dict 
     problem = registry.problem(scenes, tuple(share), fixed)
     scenario = registry.of(problem)
     scenario.latents(problem)    # a bad share or fix fails here, before tracking
+    until_rhat, max_seconds = until_converged(sweeps, until_rhat, max_sweeps, max_seconds)
     cfg = run_config(scenario, chains=chains, sweeps=sweeps, seed=seed, workers=workers, sigma=sigma, moves=moves,
                      warmup=warmup, until_rhat=until_rhat, min_ess=min_ess, max_sweeps=max_sweeps,
                      max_seconds=max_seconds, priors=priors, narrow=narrow, broad=broad, broad_every=broad_every,

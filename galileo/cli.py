@@ -346,11 +346,23 @@ def fixed_arg(items: list[str] | None) -> dict[str, float]:
     return out
 
 
+def until_converged_by_default(args: argparse.Namespace) -> None:
+    """galileo infer's run: until converged unless --sweeps N alone asks for a fixed run, within
+    a wall-clock budget (`api.until_converged`, the API's own rule; errors name the flags)."""
+    from . import api
+
+    args.until_rhat, args.max_seconds = api.until_converged(
+        args.sweeps, args.until_rhat, args.max_sweeps, args.max_seconds,
+        names={"sweeps": "--sweeps", "until_rhat": "--until-rhat R", "max_sweeps": "--max-sweeps",
+               "max_seconds": "--max-seconds"})
+
+
 def cmd_infer(args: argparse.Namespace) -> int:
     from . import api, registry
     from .datatypes import Tracks
     from .results import warning_of
 
+    until_converged_by_default(args)
     videos = list(args.video)
     if any(Path(v).is_dir() for v in videos):
         if len(videos) > 1:
@@ -375,10 +387,6 @@ def cmd_infer(args: argparse.Namespace) -> int:
         raise GalileoError("--scheduler, --slurm and --granularity are for a folder of videos")
     if args.share and len(videos) == 1:
         raise GalileoError("--share is for several videos (one value of a latent for all of them)")
-    if args.max_sweeps is not None and args.until_rhat is None:
-        raise GalileoError("--max-sweeps is the budget of --until-rhat; without it, use --sweeps")
-    if args.max_seconds is not None and args.until_rhat is None:
-        raise GalileoError("--max-seconds is a budget of --until-rhat; without it, use --sweeps")
     if args.recognition_move is not None and args.recognition_move < 1:
         raise GalileoError("--recognition-move must be at least 1 (every how many sweeps)")
     if args.recognition_move and args.init != "recognition":
@@ -867,8 +875,8 @@ SIGMA_HELP = ("the likelihood's noise SD, in the scenario's unit: ramp: m/s, def
 MOVES_HELP = ("default: widths adapted in a warm-up plus the scenario's exact joint moves (ramp: k1 from the tracked "
               "acceleration, mass-ratio moves); paper: Galileo section 3.2 exactly; fitted: default plus, after the "
               "warm-up, an exact independence move fitted to every chain's warm-up draws (chains that a jagged "
-              "likelihood holds apart meet; needs --warmup >= 10) (default: default; with --until-rhat the "
-              "scenario's move set for running until converged: ramp fitted, the others default)")
+              "likelihood holds apart meet; needs --warmup >= 10) (default: running until converged, the scenario's "
+              "move set for it: ramp fitted, the others default; a fixed run of --sweeps N: default)")
 SEED_HELP = "random seed of the {what}, 0 to 2^32-1 (default: 0)"
 
 
@@ -982,7 +990,9 @@ def build_parser(lazy: bool = True) -> argparse.ArgumentParser:
     i.add_argument("--chains", type=chains_int, default=None, metavar="N",
                    help="chains (default: the scenario's protocol: 16; splash 50)")
     i.add_argument("--sweeps", type=sweeps_int, default=None, metavar="N",
-                   help="sweeps per chain (default: the scenario's protocol: 75)")
+                   help="alone: a fixed run of N sweeps per chain (the paper's protocol: --sweeps 75); with "
+                        "--until-rhat, the first block run on from (default: run until converged, from a first "
+                        "block of the scenario's protocol, 75)")
     i.add_argument("--seed", type=seed_int, default=0, help=SEED_HELP.format(what="chains"))
     i.add_argument("--workers", type=workers_int, default=None,
                    help="worker processes (default: all cores; for a folder of videos, the local Dask cluster's)")
@@ -1009,16 +1019,16 @@ def build_parser(lazy: bool = True) -> argparse.ArgumentParser:
                    help="warm-up sweeps in which widths adapt, dropped with the burn-in (default: half of --sweeps)")
     i.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
                    help="after --sweeps, run on until every latent's rank-normalised split R-hat <= R and its "
-                        "bulk and tail ESS >= --min-ess (e.g. 1.01), or until --max-sweeps (default: stop after "
-                        "--sweeps)")
+                        "bulk and tail ESS >= --min-ess, or until --max-sweeps or --max-seconds (default: 1.01, "
+                        "unless --sweeps alone asks for a fixed run)")
     i.add_argument("--min-ess", type=nonneg_float, default=400.0, metavar="N",
-                   help="with --until-rhat: the effective sample size every latent needs (default: 400)")
+                   help="running until converged: the effective sample size every latent needs (default: 400)")
     i.add_argument("--max-sweeps", type=sweeps_int, default=None, metavar="N",
-                   help="with --until-rhat: the sweep budget (default: 20 x --sweeps)")
+                   help="running until converged: the sweep budget (default: 20 x --sweeps)")
     i.add_argument("--max-seconds", type=positive_float, default=None, metavar="S",
-                   help="with --until-rhat: a wall-clock budget in seconds from the start, checked between blocks; "
-                        "the result says \"stopped\": max_seconds and how many sweeps ran: --sweeps N reruns it "
-                        "exactly (default: none)")
+                   help="running until converged: a wall-clock budget in seconds from the start, checked between "
+                        "blocks; the result says \"stopped\": max_seconds and how many sweeps ran: --sweeps N reruns "
+                        "it exactly (default: 120)")
     i.add_argument("--priors", metavar="JSON", help="merged into the scene file's priors section, e.g. the ramp's "
                    "model-mismatch options '{\"observation\": \"student_t\", \"infer_sigma\": true}' (default: the "
                    "scene file's priors)")

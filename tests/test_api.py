@@ -163,7 +163,7 @@ def test_several_videos_as_one_problem(tmp_path):
     (lambda s, t: galileo.infer(s, t, chains=0), "chains must be an integer >= 1"),
     (lambda s, t: galileo.infer(s, t, fix={"k1": float("nan")}), "fix k1: expected a finite number"),
     (lambda s, t: galileo.infer(s, t, share=["k1"]), "share is for several videos"),
-    (lambda s, t: galileo.infer(s, t, max_seconds=5), "max_seconds is a budget of until_rhat"),
+    (lambda s, t: galileo.infer(s, t, sweeps=5, max_seconds=5), "max_seconds is a budget of running until converged"),
     (lambda s, t: galileo.infer(s, t, moves="fast"), "moves must be one of"),
     (lambda s, t: galileo.infer([s, s], [t]), "2 scene(s) need as many videos or tracks, got 1"),
     (lambda s, t: galileo.infer(s, t, fix={"nope": 1.0}), "nope"),

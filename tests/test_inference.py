@@ -442,6 +442,29 @@ def test_cli_infer_until_converged_says_which_budget_stopped_it(demo_dir, tracks
     assert json.loads(out.read_text())["config"]["moves"]["set"] == "fitted"
 
 
+def test_cli_infer_runs_until_converged_by_default_and_sweeps_alone_is_a_fixed_run(demo_dir, tracks_file, tmp_path):
+    out = tmp_path / "r.json"
+    base = ("infer", demo_dir / "video.mp4", "--scene", DATA / "scene.json", "--tracks", tracks_file, "--chains", 2,
+            "--workers", 1, "--out", out, "--quiet")
+    # no --sweeps: the protocol's first block (75), then on towards R-hat <= 1.01 within the budgets
+    rc, stdout, err = run_cli(*base, "--max-sweeps", 85)
+    assert rc == 0, err
+    d = json.loads(out.read_text())
+    assert d["config"]["until_rhat"] == 1.01 and d["config"]["max_seconds"] == 120.0
+    assert d["config"]["moves"]["set"] == "fitted" and "; moves fitted)" in stdout
+    assert d["stopped"] in ("converged", "max_sweeps") and 75 <= d["diagnostics"]["sweeps"] <= 85
+    # --sweeps alone: exactly that many sweeps, the default moves, no target
+    rc, stdout, err = run_cli(*base, "--sweeps", 3)
+    assert rc == 0, err
+    d = json.loads(out.read_text())
+    assert d["config"]["until_rhat"] is None and d["diagnostics"]["sweeps"] == 3 and d["stopped"] is None
+    assert d["config"]["moves"]["set"] == "default"
+    # a budget for a fixed run is refused, naming both flags
+    for flag, value in (("--max-seconds", 5), ("--max-sweeps", 9)):
+        rc, _, err = run_cli(*base, "--sweeps", 3, flag, value)
+        assert one_line_error(rc, err, flag) and "--sweeps 3 alone is a fixed run" in err, err
+
+
 @pytest.mark.parametrize("change, needle", [
     ({"--tracks": "missing.json"}, "tracks file not found"),
     ({"--chains": "0"}, "--chains"),
