@@ -4,13 +4,13 @@ warm-up, issue 30).
 
 Usage (from the repository root):
     python bench/bench_converge.py [--dataset DIR] [--videos N] [--chains 16] [--sweeps 75]
-                                   [--max-sweeps 1500] [--rhat 1.01] [--min-ess 400]
+                                   [--max-sweeps 1500] [--max-seconds 3600] [--rhat 1.01] [--min-ess 400]
                                    [--moves default paper fitted] [--seeds 0 1 2] [--workers N] --out DIR
 
 For each video it runs, as a user would, the command
 
     galileo infer VIDEO --scene SCENE --tracks TRACKS --moves M --until-rhat R --min-ess E
-                  --max-sweeps N --chains C --sweeps S --out OUT/<video>-<M>.json --quiet
+                  --max-sweeps N --chains C --sweeps S --max-seconds T --out OUT/<video>-<M>.json --quiet
 
 in a new process and times it from process start to result.json written (the tracks are
 made once beforehand with `galileo track`, whose time is not counted: it is the same for
@@ -119,7 +119,8 @@ def run(args) -> int:
             cmd = ["infer", str(v["folder"] / "video.mp4"), "--scene", str(v["folder"] / "scene.json"),
                    "--tracks", str(tracks), "--moves", moves, "--until-rhat", str(args.rhat),
                    "--min-ess", str(args.min_ess), "--max-sweeps", str(args.max_sweeps), "--chains", str(args.chains),
-                   "--sweeps", str(args.sweeps), "--seed", str(seed), "--out", str(res), "--quiet"]
+                   "--sweeps", str(args.sweeps), "--seed", str(seed), "--max-seconds", str(args.max_seconds),
+                   "--out", str(res), "--quiet"]
             if args.workers:
                 cmd += ["--workers", str(args.workers)]
             t0 = time.perf_counter()
@@ -178,6 +179,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--chains", type=int, default=16)
     ap.add_argument("--sweeps", type=int, default=75, help="the first block (warm-up: half of it)")
     ap.add_argument("--max-sweeps", type=int, default=1500)
+    ap.add_argument("--max-seconds", type=float, default=3600.0,
+                    help="galileo infer's wall-clock budget (default: an hour, so that the sweeps decide)")
     ap.add_argument("--rhat", type=float, default=1.01)
     ap.add_argument("--min-ess", type=float, default=400)
     ap.add_argument("--moves", nargs="+", choices=["default", "paper", "fitted"], default=["default", "paper"])
