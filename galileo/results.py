@@ -307,7 +307,8 @@ def warning_of(verdict: dict) -> str | None:
     why = verdict["why_not"]
     more = f" (and {len(why) - 1} more)" if len(why) > 1 else ""
     return (f"the posterior is not converged: {why[0]}{more}; the MAP may still be good, but intervals and "
-            "shares are not to be trusted (run longer: --until-rhat 1.01 --max-sweeps N)")
+            "shares are not to be trusted (run longer: until converged, galileo infer's default without --sweeps N, "
+            "with a larger --max-seconds S or --max-sweeps N)")
 
 
 def derived_summaries(scenario, scene, names: Sequence[str], rows) -> dict[str, dict]:

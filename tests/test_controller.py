@@ -177,6 +177,62 @@ def test_the_fitted_move_set_equals_the_batch_runner_and_comes_back_with_the_ses
         make(chains=2, moves="fitted", sweeps=12)
 
 
+def test_a_session_fitted_before_the_conditional_moves_reopens_with_the_kernel_it_ran(demo, make, tmp_path):
+    """The "fitted" event records how many joint proposals and conditional moves joined with q;
+    a session recorded before the conditional moves (no counts: 12 joint, none) gives a chain made
+    after reopening those 12 and no conditional move, and a session of today all of them."""
+    from galileo.mcmc import FittedConditional, FittedIndependence
+    from galileo.runner import FITTED_CONDITIONALS, FITTED_PER_SWEEP
+    from ui.session import CHAINS_FILE, EVENTS_FILE
+
+    ctl = make(chains=2, seed=2, workers=1, moves="fitted", sweeps=12, warmup=10, session_dir=tmp_path / "s")
+    ctl.run_sweeps(10)              # to the fit, before any sweep proposes the moves it adds
+    assert [e["kind"] for e in ctl.events].count("fitted") == 1
+    ctl.save()
+    ctl.close()
+
+    def kinds(folder):
+        back = Controller.load(folder, workers=1)
+        try:
+            moves = back._moves0
+            return (sum(isinstance(m, FittedIndependence) for m in moves),
+                    sorted(m.site for m in moves if isinstance(m, FittedConditional)))
+        finally:
+            back.close()
+
+    assert kinds(tmp_path / "s") == (FITTED_PER_SWEEP, sorted(list(range(4)) * FITTED_CONDITIONALS))
+    # the session as it was recorded before: no counts in the event, no conditional moves in the chains
+    path = tmp_path / "s" / EVENTS_FILE
+    doc = json.loads(path.read_text())
+    for e in doc["events"]:
+        if e["kind"] == "fitted":
+            del e["detail"]["per_sweep"], e["detail"]["conditionals"]
+    path.write_text(json.dumps(doc))
+    path = tmp_path / "s" / CHAINS_FILE
+    text = path.read_text()
+    doc = json.loads(text)
+    dropped = _drop_moves(doc, "FittedConditional")
+    assert dropped == 2 * 4 * FITTED_CONDITIONALS, dropped      # two chains' conditional moves
+    path.write_text(json.dumps(doc))
+    assert kinds(tmp_path / "s") == (12, [])
+
+
+def _drop_moves(node, kind: str) -> int:
+    """Remove the recorded joint moves of type `kind` wherever they are in a session file's JSON;
+    how many."""
+    n = 0
+    if isinstance(node, dict):
+        for v in node.values():
+            n += _drop_moves(v, kind)
+    elif isinstance(node, list):
+        keep = [x for x in node if not (isinstance(x, dict) and x.get("type") == kind)]
+        n += len(node) - len(keep)
+        node[:] = keep
+        for x in node:
+            n += _drop_moves(x, kind)
+    return n
+
+
 def test_run_until_converged_equals_the_batch_runner(demo, make):
     """--until-rhat in the app: held at the sweep target, checked, run on in the batch runner's
     blocks until the budget (4 sweeps, then 2 more: never converged this short) and the
