@@ -369,122 +369,95 @@ class FittedIndependence(NamedTuple):
 
 class FittedConditional(NamedTuple):
     """An independence move of one latent given the others, from the fitted move's q
-    (`FittedIndependence`, the defensive part left out; written for a mixture of t's, of which
-    q is one). With y the sites in q's transformed space, each component j (a multivariate t:
-    centre m, scale S, df) has
-    as conditional of y_k given y_-k the univariate t of df + d - 1 degrees of freedom, centre
-    m_k + b (y_-k - m_-k), squared scale (df + delta^2) / (df + d - 1) s^2 (b and s^2 the normal's
-    regression and conditional variance under S, delta^2 = (y_-k - m_-k)' S_-k^-1 (y_-k - m_-k));
-    q's conditional is the mixture of these, component j weighted by w_j times its marginal
-    density at y_-k. The others are unchanged, so this is a fixed proposal for the coordinate:
-    log Hastings = log q(x_k | rest) - log q(x'_k | rest), with the log map's Jacobian for a log
-    site; exact (Metropolis within Gibbs). Where the joint q must match the posterior in every
-    latent at once to be accepted, this one must match it in one: the ramp's jagged k1 is
-    redrawn from its conditional often."""
+    (`FittedIndependence`, the defensive part left out). With y the sites in q's transformed
+    space and q's t part of centre m, scale S and df degrees of freedom, the conditional of y_k
+    given y_-k is the univariate t of df + d - 1 degrees of freedom, centre m_k + b (y_-k - m_-k),
+    squared scale (df + delta^2) / (df + d - 1) s^2 (b and s^2 the normal's regression and
+    conditional variance under S, delta^2 = (y_-k - m_-k)' S_-k^-1 (y_-k - m_-k)). The others are
+    unchanged, so this is a fixed proposal for the coordinate: log Hastings = log q(x_k | rest) -
+    log q(x'_k | rest), with the log map's Jacobian for a log site; exact (Metropolis within
+    Gibbs). Where the joint q must match the posterior in every latent at once to be accepted,
+    this one must match it in one: the ramp's jagged k1 is redrawn from its conditional often."""
     site: int                    # the latent moved
     log: bool                    # it is moved in log (a log site of q)
     others: tuple[int, ...]      # the sites conditioned on
     others_log: tuple[bool, ...]
-    weights: tuple[float, ...]   # per component of q: its weight ...
-    loc: tuple[float, ...]       # ... its centre of y_k ...
-    others_loc: tuple            # ... of y_-k (K, d - 1)
-    coef: tuple                  # ... the regression on y_-k - m_-k (K, d - 1)
-    var: tuple[float, ...]       # ... the conditional variance (normal) under its scale
-    prec: tuple                  # ... S_-k^-1 (K, d - 1, d - 1)
-    log_det: tuple[float, ...]   # ... log det S_-k (its marginal's normaliser)
+    loc: float                   # q's centre of y_k ...
+    others_loc: tuple[float, ...]  # ... and of y_-k
+    coef: tuple[float, ...]      # the regression on y_-k - m_-k
+    var: float                   # the conditional variance (normal) under q's scale
+    prec: tuple                  # S_-k^-1, rows as tuples (for delta^2)
     df: float                    # q's degrees of freedom
     every: int = 1
     name: str = "fitted_conditional"
 
     def check(self, n_latents: int) -> "FittedConditional":
-        """ValueError (one line) unless the fields fit together: the sites within the latents,
-        one entry per component in each per-component field, the shapes of the others', weights
-        that sum to 1, positive variances and degrees of freedom; self otherwise."""
-        p, k = len(self.others), len(self.weights)
+        """ValueError (one line) unless the fields fit together (the sites within the latents,
+        the others' fields of their length, a positive variance and df); self otherwise."""
+        p = len(self.others)
         if not all(0 <= i < n_latents for i in (self.site, *self.others)) or self.site in self.others:
             raise ValueError(f"FittedConditional: sites {self.site}, {self.others} outside 0..{n_latents - 1} or repeated")
-        if len(self.others_log) != p or k < 1 or any(
-                len(f) != k for f in (self.loc, self.others_loc, self.coef, self.var, self.prec, self.log_det)):
-            raise ValueError("FittedConditional: one entry per component in each of its fields")
-        if any(len(o) != p for o in self.others_loc) or any(len(c) != p for c in self.coef) or any(
-                np.shape(np.asarray(m, float).reshape(-1)) != (p * p,) for m in self.prec):
+        if (len(self.others_log), len(self.others_loc), len(self.coef)) != (p, p, p) or np.shape(
+                np.asarray(self.prec, float).reshape(-1)) != (p * p,):
             raise ValueError(f"FittedConditional: the others' fields are not of {p} latents")
-        if not (abs(sum(self.weights) - 1.0) < 1e-9 and min(self.weights) > 0 and min(self.var) > 0 and self.df > 0):
-            raise ValueError("FittedConditional: weights must be positive and sum to 1, variances and df positive")
+        if not (self.var > 0 and self.df > 0):
+            raise ValueError("FittedConditional: the variance and df must be positive")
         return self
 
-    def _given(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-        """(log weights, centres, scales) of the conditional's components at the others' values
-        in x, and its degrees of freedom."""
-        r0 = np.array([math.log(x[i]) if lg else float(x[i]) for i, lg in zip(self.others, self.others_log)])
-        p, nu = len(self.others), self.df
-        logw, centres, scales = [], [], []
-        for w, loc, oloc, coef, var, prec, log_det in zip(self.weights, self.loc, self.others_loc, self.coef,
-                                                         self.var, self.prec, self.log_det):
-            r = r0 - np.asarray(oloc, float)
-            delta2 = float(r @ np.asarray(prec, float) @ r) if p else 0.0
-            logw.append(math.log(w) - 0.5 * log_det - 0.5 * (nu + p) * math.log1p(delta2 / nu))
-            centres.append(loc + (float(np.dot(coef, r)) if p else 0.0))
-            scales.append(math.sqrt((nu + delta2) / (nu + p) * var))
-        logw = np.asarray(logw)
-        return logw - np.logaddexp.reduce(logw), np.asarray(centres), np.asarray(scales), nu + p
+    def _given(self, x: np.ndarray) -> tuple[float, float, float]:
+        """(centre, scale, degrees of freedom) of the conditional at the others' values in x."""
+        r = np.array([math.log(x[i]) if lg else float(x[i]) for i, lg in zip(self.others, self.others_log)])
+        p = len(self.others)
+        if not p:
+            return self.loc, math.sqrt(self.var), self.df
+        r -= np.asarray(self.others_loc, float)
+        delta2 = float(r @ np.asarray(self.prec, float) @ r)
+        return (self.loc + float(np.dot(self.coef, r)), math.sqrt((self.df + delta2) / (self.df + p) * self.var),
+                self.df + p)
 
-    def _logq(self, v: float, given) -> float:
-        logw, centres, scales, dof = given
+    def _logq(self, v: float, centre: float, scale: float, dof: float) -> float:
         if self.log:
             if not v > 0:
                 return -math.inf
             y, jac = math.log(v), -math.log(v)
         else:
             y, jac = v, 0.0
-        z = (y - centres) / scales
-        comp = (math.lgamma((dof + 1) / 2) - math.lgamma(dof / 2) - 0.5 * math.log(dof * math.pi) - np.log(scales)
-                - 0.5 * (dof + 1) * np.log1p(z * z / dof))
-        return float(np.logaddexp.reduce(logw + comp)) + jac
+        z = (y - centre) / scale
+        return (math.lgamma((dof + 1) / 2) - math.lgamma(dof / 2) - 0.5 * math.log(dof * math.pi) - math.log(scale)
+                - 0.5 * (dof + 1) * math.log1p(z * z / dof) + jac)
 
     def propose(self, rng: np.random.Generator, position) -> tuple[np.ndarray, float]:
         x = np.asarray(position, float).copy()
         if any(not x[i] > 0 for i, lg in zip(self.others, self.others_log) if lg):
             return x, -math.inf
-        given = self._given(x)
-        logw, centres, scales, dof = given
-        j = int(rng.choice(len(logw), p=np.exp(logw))) if len(logw) > 1 else 0
-        y = centres[j] + scales[j] * rng.standard_t(dof)
+        centre, scale, dof = self._given(x)
+        y = centre + scale * rng.standard_t(dof)
         old = float(x[self.site])
         x[self.site] = math.exp(y) if self.log else y
-        lq_old = self._logq(old, given)
+        lq_old = self._logq(old, centre, scale, dof)
         if not lq_old > -math.inf or not math.isfinite(x[self.site]):
             return x, -math.inf
-        return x, lq_old - self._logq(float(x[self.site]), given)
+        return x, lq_old - self._logq(float(x[self.site]), centre, scale, dof)
 
 
 def conditionals_of(q: FittedIndependence) -> tuple[FittedConditional, ...]:
     """One `FittedConditional` per site of q (its t part, of scale S = chol chol')."""
-    weights, locs, chols = (1.0,), [np.asarray(q.loc, float)], (q.chol,)
-    covs = [np.asarray(c, float) @ np.asarray(c, float).T for c in chols]
+    loc, chol = np.asarray(q.loc, float), np.asarray(q.chol, float)
+    cov = chol @ chol.T
     sites = list(q.sites)
     out = []
     for k, site in enumerate(sites):
         rest = [j for j in range(len(sites)) if j != k]
-        parts = {"loc": [], "others_loc": [], "coef": [], "var": [], "prec": [], "log_det": []}
-        for loc, cov in zip(locs, covs):
-            if rest:
-                sub = cov[np.ix_(rest, rest)]
-                prec = np.linalg.inv(sub)
-                coef = cov[k, rest] @ prec
-                var = float(cov[k, k] - coef @ cov[rest, k])
-                log_det = float(np.linalg.slogdet(sub)[1])
-            else:
-                prec, coef, var, log_det = np.zeros((0, 0)), np.zeros(0), float(cov[k, k]), 0.0
-            parts["loc"].append(float(loc[k]))
-            parts["others_loc"].append(tuple(float(loc[j]) for j in rest))
-            parts["coef"].append(tuple(map(float, coef)))
-            parts["var"].append(max(var, 1e-300))
-            parts["prec"].append(_rows(prec))
-            parts["log_det"].append(log_det)
+        if rest:
+            prec = np.linalg.inv(cov[np.ix_(rest, rest)])
+            coef = cov[k, rest] @ prec
+            var = float(cov[k, k] - coef @ cov[rest, k])
+        else:
+            prec, coef, var = np.zeros((0, 0)), np.zeros(0), float(cov[k, k])
         out.append(FittedConditional(site, site in q.log_sites, tuple(sites[j] for j in rest),
-                                     tuple(sites[j] in q.log_sites for j in rest), tuple(map(float, weights)),
-                                     **{k2: tuple(v) for k2, v in parts.items()}, df=float(q.df)))
+                                     tuple(sites[j] in q.log_sites for j in rest), float(loc[k]),
+                                     tuple(float(loc[j]) for j in rest), tuple(map(float, coef)), max(var, 1e-300),
+                                     _rows(prec), float(q.df)))
     return tuple(out)
 
 
