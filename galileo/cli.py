@@ -1028,7 +1028,7 @@ def build_parser(lazy: bool = True) -> argparse.ArgumentParser:
     i.add_argument("--max-seconds", type=positive_float, default=None, metavar="S",
                    help="running until converged: a wall-clock budget in seconds from the start, checked between "
                         "blocks; the result says \"stopped\": max_seconds and how many sweeps ran: --sweeps N reruns "
-                        "it exactly (default: 120)")
+                        "it exactly (default: 300)")
     i.add_argument("--priors", metavar="JSON", help="merged into the scene file's priors section, e.g. the ramp's "
                    "model-mismatch options '{\"observation\": \"student_t\", \"infer_sigma\": true}' (default: the "
                    "scene file's priors)")

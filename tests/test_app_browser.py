@@ -33,10 +33,13 @@ def test_browser_scrubs_samples_and_the_scene_changes(viewer):
     ends = [model.motion(s).position_m[0, viewer.frame] for s in samples]
     before_n, before_sel = viewer.resimulations, viewer.selection.index
     assert before_sel == 0 and np.array_equal(viewer.object_handles[0].position, ends[0])
+    # three steps right: the chain's 4th sample, whose motion differs from its first's (or the test shows nothing)
+    later = before_sel + 3
+    assert np.abs(ends[later] - ends[before_sel]).max() > 1e-6, "the chain's samples end alike: pick another"
 
     def shows_a_later_sample() -> bool:
         sel = viewer.selection.index
-        return sel > before_sel and np.array_equal(viewer.object_handles[0].position, ends[sel])
+        return sel == later and np.array_equal(viewer.object_handles[0].position, ends[sel])
 
     with sync_playwright() as p:
         browser = launch_chromium(p)

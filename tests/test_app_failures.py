@@ -291,7 +291,7 @@ def test_an_interrupted_saves_temporary_files_are_removed_on_reopen(demo, tmp_pa
     try:
         names = {p.name for p in folder.iterdir()}
         assert not names & set(stale) and set(kept) <= names and set(sess.FILES) <= names
-        assert back.samples(0).shape == (2, 4)
+        assert back.samples(0).shape == (2, len(back.names))
     finally:
         back.close()
 

@@ -92,7 +92,7 @@ def test_ecdf_test_accepts_uniform_and_rejects_piled_up_values():
 
 # -- the ramp's synthetic observations ---------------------------------------------------------------
 
-VALUES = {"m1_kg": 0.3, "k1": 0.2, "m2_kg": 0.12, "k2": 0.4}
+VALUES = {"m1_kg": 0.3, "k1": 0.2, "m2_kg": 0.12, "k2": 0.4, "e_collision": 0.3}   # (a collision that bounces)
 
 
 @pytest.fixture(scope="module")

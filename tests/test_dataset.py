@@ -28,7 +28,8 @@ def test_demo_folder_has_h264_video_scene_and_truth(demo_dir):
     assert scene.camera.n_frames == info.n_frames == len(truth["trajectory"]["time_s"])
     lat = truth["latents"]
     assert lat["angle_deg"] == 20.0 and lat["target"] == "cardboard"
-    assert {"m1_kg", "k1", "m2_kg", "k2", "shape1", "shape2", "offset_units", "material"} <= set(lat)
+    assert {"m1_kg", "k1", "m2_kg", "k2", "e_collision", "shape1", "shape2", "offset_units", "material"} <= set(lat)
+    assert lat["e_collision"] == 0.0   # (the demo's objects do not bounce: restitution 0 each)
     assert lat["m1_kg"] == scene.ramp_object.mass_kg and lat["k2"] == scene.target.friction
     # the demo is a collision: the target moves
     traj = Trajectory.from_json(truth["trajectory"])

@@ -103,7 +103,7 @@ def test_02_your_own_ramp_video(out, tmp_path):
     for image in ("first_frame.png", "overlay.png"):
         png(here / image)
     result = galileo.load_result(here / "result.json")
-    assert result.names == ("m1_kg", "k1", "m2_kg", "k2")
+    assert result.names == ("m1_kg", "k1", "m2_kg", "k2", "e_collision")   # (the restitution: a latent by default)
     answers = json.loads((here / "predictions.json").read_text())
     assert answers["will_it_move"]["angle_deg"] == 10.0 and "target_final_x_m" in answers["target"]
 

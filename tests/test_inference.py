@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+from galileo import api
 from galileo.results import InferenceResult, load_samples
 from galileo.runner import RunConfig as InferenceConfig
 from galileo.runner import infer
@@ -15,6 +16,9 @@ from galileo.scenarios.ramp.likelihood import VelocityLikelihood
 from galileo.scenarios.ramp.scene import scene_from_json
 
 from conftest import DATA, LATENT_NAMES, assert_same_decisions
+
+# the demo's latents as the default model infers them (the collision's restitution a latent)
+NAMES = (*LATENT_NAMES, "e_collision")
 
 
 
@@ -333,13 +337,13 @@ def test_save_writes_documented_result_and_npz(small_result: InferenceResult, tm
     assert npz == tmp_path / "result.samples.npz" and npz.exists()
     d = json.loads(path.read_text())
     assert d["samples_file"] == "result.samples.npz"
-    assert set(d["map"]) == set(LATENT_NAMES) == set(d["latents"])
+    assert set(d["map"]) == set(NAMES) == set(d["latents"])
     c, s = res.map_index
-    assert d["map"] == pytest.approx(dict(zip(LATENT_NAMES, res.samples[c, s].tolist())))
+    assert d["map"] == pytest.approx(dict(zip(NAMES, res.samples[c, s].tolist())))
     assert d["map_loglik"] == pytest.approx(res.logliks.max())
     assert d["mass_ratio"] == pytest.approx(d["map"]["m1_kg"] / d["map"]["m2_kg"])
     kept = res.samples[:, 3:]  # second half of 6 sweeps
-    for j, n in enumerate(LATENT_NAMES):
+    for j, n in enumerate(NAMES):
         p = d["posterior"][n]
         assert set(p) == {"mean", "sd", "q05", "q25", "q50", "q75", "q95"}
         assert p["q05"] <= p["q50"] <= p["q95"]
@@ -347,22 +351,22 @@ def test_save_writes_documented_result_and_npz(small_result: InferenceResult, tm
         assert p["q50"] == pytest.approx(np.median(kept[..., j]))
     diag = d["diagnostics"]
     for k in ("r_hat", "ess", "ess_tail"):
-        assert set(diag[k]) == set(LATENT_NAMES), k
-    assert set(diag["acceptance"]) == set(LATENT_NAMES) | {
+        assert set(diag[k]) == set(NAMES), k
+    assert set(diag["acceptance"]) == set(NAMES) | {
         "k1_from_acceleration_move", "mass_ray_move", "mass_ratio_move", "joint_rw_move"}
-    for j, n in enumerate(LATENT_NAMES):
+    for j, n in enumerate(NAMES):
         sel = res.proposals["site"] == j
         assert diag["acceptance"][n] == pytest.approx(res.proposals["accepted"][sel].mean())
     assert diag["physics_steps"] == res.steps > 0
     assert d["timing_s"]["wall"] > 0 and d["timing_s"]["workers"] == 1
     assert d["config"]["chains"] == 2 and d["config"]["sweeps"] == 6 and d["config"]["speedups"] is True
     assert d["scene"]["objects"][0]["shape"]["type"] == res.scene.objects[0].shape.type
-    assert scene_from_json(d["scene"]).latent_names == LATENT_NAMES  # the scene round-trips
+    assert scene_from_json(d["scene"]).latent_names == NAMES  # the scene round-trips
 
     with np.load(npz, allow_pickle=False) as z:  # no pickled objects inside
         files = set(z.files)
         assert {"names", "samples", "logliks", "starts"} <= files
-        assert [str(x) for x in z["names"]] == list(LATENT_NAMES)
+        assert [str(x) for x in z["names"]] == list(NAMES)
 
 
 def test_saved_run_equals_live_run(small_result: InferenceResult, tmp_path):
@@ -377,7 +381,7 @@ def test_saved_run_equals_live_run(small_result: InferenceResult, tmp_path):
         assert rec[f"proposal_{k}"].dtype == v.dtype
         assert np.array_equal(rec[f"proposal_{k}"], v, equal_nan=v.dtype.kind == "f"), k
     # one proposal per latent per sweep, then one per joint move (the ramp's three and the joint walk)
-    assert res.samples.shape == (2, 6, 4) and res.proposals["accepted"].shape == (2, 6 * (4 + 4))
+    assert res.samples.shape == (2, 6, len(NAMES)) and res.proposals["accepted"].shape == (2, 6 * (len(NAMES) + 4))
 
 
 def test_load_samples_rejects_garbage(tmp_path):
@@ -415,9 +419,9 @@ def test_cli_infer_writes_result(cli_result):
     out, stdout = cli_result
     d = json.loads(out.read_text())
     assert d["config"]["chains"] == 2 and d["config"]["sweeps"] == 2
-    assert set(d["map"]) == set(LATENT_NAMES)
+    assert set(d["map"]) == set(NAMES)
     assert (out.parent / d["samples_file"]).exists()
-    assert load_samples(out.parent / d["samples_file"])["samples"].shape == (2, 2, 4)
+    assert load_samples(out.parent / d["samples_file"])["samples"].shape == (2, 2, len(NAMES))
     # the headline leads with what a collision identifies, and says what it does not
     assert stdout.startswith("MAP: k1 = ") and "m1/m2 = " in stdout and f"wrote {out}" in stdout
     assert "not identified: m1_kg, m2_kg: only the ratio" in stdout and "m1_kg = " not in stdout
@@ -442,6 +446,18 @@ def test_cli_infer_until_converged_says_which_budget_stopped_it(demo_dir, tracks
     assert json.loads(out.read_text())["config"]["moves"]["set"] == "fitted"
 
 
+def test_the_cli_help_states_the_apis_default_budget():
+    """`galileo infer --help` writes the default wall-clock budget as a literal (the CLI does not
+    import the API to parse): it must be the API's."""
+    import argparse
+
+    from galileo.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices["infer"]
+    act = next(a for a in sub._actions if "--max-seconds" in a.option_strings)
+    assert f"(default: {api.DEFAULT_MAX_SECONDS:g})" in act.help
+
+
 def test_cli_infer_runs_until_converged_by_default_and_sweeps_alone_is_a_fixed_run(demo_dir, tracks_file, tmp_path):
     out = tmp_path / "r.json"
     base = ("infer", demo_dir / "video.mp4", "--scene", DATA / "scene.json", "--tracks", tracks_file, "--chains", 2,
@@ -450,7 +466,7 @@ def test_cli_infer_runs_until_converged_by_default_and_sweeps_alone_is_a_fixed_r
     rc, stdout, err = run_cli(*base, "--max-sweeps", 85)
     assert rc == 0, err
     d = json.loads(out.read_text())
-    assert d["config"]["until_rhat"] == 1.01 and d["config"]["max_seconds"] == 120.0
+    assert d["config"]["until_rhat"] == 1.01 and d["config"]["max_seconds"] == api.DEFAULT_MAX_SECONDS == 300.0
     assert d["config"]["moves"]["set"] == "fitted" and "; moves fitted)" in stdout
     assert d["stopped"] in ("converged", "max_sweeps") and 75 <= d["diagnostics"]["sweeps"] <= 85
     # --sweeps alone: exactly that many sweeps, the default moves, no target

@@ -136,11 +136,12 @@ def test_a_fixed_reference_mass_identifies_the_other_mass():
     m2 = 0.15
     scene, tracks = _observed(20.0, 3, target="cardboard", m2_kg=m2, k2=0.35)
     lik = RAMP.likelihood(RAMP.prepare(scene, tracks), tracks, RAMP.noise.default)
-    assert lik.names == ("m1_kg", "k1", "m2_kg", "k2")
-    at_truth = lik([M1, K1, m2, 0.35])[0]
+    assert lik.names == ("m1_kg", "k1", "m2_kg", "k2", "e_collision")   # (the objects' restitution: 0)
+    at_truth = lik([M1, K1, m2, 0.35, 0.0])[0]
     for f in (0.5, 2.0, 3.0):
-        assert lik([f * M1, K1, f * m2, 0.35])[0] == pytest.approx(at_truth, abs=1e-6)
-    prob = registry.problem([scene], fixed={"m2_kg": m2})
+        assert lik([f * M1, K1, f * m2, 0.35, 0.0])[0] == pytest.approx(at_truth, abs=1e-6)
+    # (the collision's restitution fixed too, at the scene's 0: the masses are the question here)
+    prob = registry.problem([scene], fixed={"m2_kg": m2, "e_collision": 0.0})
     scen = registry.of(prob)
     fixed = scen.likelihood(scen.prepare(prob, tracks), tracks, RAMP.noise.default)
     assert fixed.names == ("m1_kg", "k1", "k2")
@@ -153,7 +154,7 @@ def test_a_fixed_reference_mass_identifies_the_other_mass():
     # the chains' best sample: within 40% (8 data and chain seeds gave -21% to +20%); unfixed, the
     # ridge lets it lie anywhere from 0 to the prior's 1 kg
     assert res.map["m1_kg"] == pytest.approx(M1, rel=0.4)
-    assert res.to_json()["scene"]["fixed"] == {"m2_kg": m2}
+    assert res.to_json()["scene"]["fixed"] == {"m2_kg": m2, "e_collision": 0.0}
 
 
 def test_bad_layouts_are_one_line_errors(two_ramps):

@@ -202,7 +202,8 @@ def test_new_fields_round_trip():
     assert t == s and t.to_json() == s.to_json()
     d = t.to_json()
     assert d["priors"]["observation"] == "student_t" and d["priors"]["student_t_dof"] == 2.5
-    assert d["priors"]["infer_sigma"] is True and d["priors"]["infer_restitution"] is True
+    # the restitution latent is the default (scene version 2): a file says so only when it is off
+    assert d["priors"]["infer_sigma"] is True and "infer_restitution" not in d["priors"]
     assert d["priors"][SIGMA] == [-2.0, -1.0] and d["priors"]["e_collision"] == [0.0, 1.0]
     assert d["collision_restitution"] == 0.4
     assert t.latent_names == ("m1_kg", "k1", "m2_kg", "k2", "e_collision", SIGMA)
@@ -220,10 +221,30 @@ def test_old_scene_files_load_unchanged():
     s = scene_from_json(d)
     p = s.priors
     # a file without the field gets today's default, Student-t (the paper's Gaussian must be named)
-    assert (p.observation, p.student_t_dof, p.infer_sigma, p.infer_restitution) == ("student_t", 4.0, False, False)
+    assert (p.observation, p.student_t_dof, p.infer_sigma, p.infer_restitution) == ("student_t", 4.0, False, True)
     assert s.collision_restitution is None
-    assert s.latent_names == ("m1_kg", "k1", "m2_kg", "k2")
+    assert s.latent_names == ("m1_kg", "k1", "m2_kg", "k2", "e_collision")
     assert s.to_json()["priors"] == d["priors"] and "collision_restitution" not in s.to_json()
+
+
+def test_version_1_scene_files_keep_the_restitution_fixed():
+    """A scene file of version 1 (before the restitution latent was the default) means what it
+    meant: no e_collision unless it says infer_restitution; written again (version 2) it says
+    false, so it reads the same model back."""
+    d = json.loads((DATA / "scene.json").read_text())
+    d["version"] = 1
+    del d["priors"]["e_collision"]
+    s = scene_from_json(d)
+    assert s.priors.infer_restitution is False and s.latent_names == ("m1_kg", "k1", "m2_kg", "k2")
+    out = s.to_json()
+    assert out["version"] == 2 and out["priors"]["infer_restitution"] is False and "e_collision" not in out["priors"]
+    assert scene_from_json(out) == s
+    on = scene_from_json({**d, "priors": {**d["priors"], "infer_restitution": True}})
+    assert on.latent_names[-1] == "e_collision"
+    # version 2 without the field: the latent; with false: not
+    d2 = {**d, "version": 2}
+    assert scene_from_json(d2).latent_names[-1] == "e_collision"
+    assert scene_from_json({**d2, "priors": {**d["priors"], "infer_restitution": False}}).latent_names[-1] == "k2"
 
 
 BASE = default_scene(20, target="cardboard").to_json()
@@ -300,7 +321,8 @@ def test_inference_recovers_sigma(demo_frozen):
     starts at a small sigma climbs out slowly (the likelihood is steep there)."""
     scene, template, x0 = demo_frozen
     sigma_true = 0.03
-    scene = with_priors(scene, infer_sigma=True, observation="gaussian")   # the noise below is Gaussian
+    # the noise below is Gaussian; the physical latents the four of x0 (the restitution fixed)
+    scene = with_priors(scene, infer_sigma=True, observation="gaussian", infer_restitution=False)
     scene = dataclasses.replace(scene, priors=scene.priors.with_bounds(
         m1_kg=(0.08, 0.3), k1=(0.15, 0.3), m2_kg=(0.07, 0.25), k2=(0.3, 0.5), log10_sigma_mps=(-2.0, -1.0)))
     lik = VelocityLikelihood(scene, template, speedups=False)

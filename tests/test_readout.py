@@ -92,7 +92,8 @@ def test_the_ramp_readings_start_the_same_latents_as_before(demo_frozen):
     q = independence(read, ramp, scene, names, bounds)
     got = {n: (q.kinds[j], q.loc[j], q.scale[j]) for j, n in enumerate(names)}
     assert got == {"m1_kg": ("lognormal", math.log(0.03), 0.25), "k1": ("normal", 0.31, 0.02),
-                   "m2_kg": ("lognormal", math.log(0.08), 0.5), "k2": ("normal", 0.42, 1e-3)}
+                   "m2_kg": ("lognormal", math.log(0.08), 0.5), "k2": ("normal", 0.42, 1e-3),
+                   "e_collision": ("uniform", 0.0, 1.0)}   # no readout reads a restitution: its prior
     assert [(r.role, r.mass, r.friction, r.mass_per_kg) for r in ramp.readouts(scene)] == \
         [("ramp", "m1_kg", "k1", 1.0), ("target", "m2_kg", "k2", 1.0)]
 

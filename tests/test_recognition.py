@@ -250,17 +250,18 @@ def test_infer_starts_where_init_says_and_records_it(demo_frozen):
     from galileo.runner import Init, RunConfig, infer
 
     scene, tracks, truth = demo_frozen
+    truth = np.append(truth, 0.0)   # the default model's e_collision: the demo's objects do not bounce
     calls = []
 
     def init(prepared, names, bounds, n_chains, seed, integer_sites):
         calls.append((tuple(names), n_chains, seed))
         starts = np.tile(truth, (n_chains, 1))
-        q = Independence(("lognormal", "normal", "lognormal", "normal"),
-                         (math.log(truth[0]), truth[1], math.log(truth[2]), truth[3]), (0.3, 0.03, 0.3, 0.05), 2)
+        q = Independence(("lognormal", "normal", "lognormal", "normal", "uniform"),
+                         (math.log(truth[0]), truth[1], math.log(truth[2]), truth[3], 0.0), (0.3, 0.03, 0.3, 0.05, 1.0), 2)
         return Init(starts, q, {"starts": "test"})
 
     res = infer(scene, tracks, RunConfig(chains=2, sweeps=4, seed=1, workers=1), progress=False, init=init)
-    assert calls == [(LATENT_NAMES, 2, 1)]
+    assert calls == [((*LATENT_NAMES, "e_collision"), 2, 1)]
     assert np.array_equal(res.starts, np.tile(truth, (2, 1)))
     # the independence move ran every 2nd sweep: one joint proposal (site -1) in sweeps 2 and 4
     assert (res.proposals["site"] == -1).sum(axis=1).tolist() == [2, 2]
@@ -387,8 +388,8 @@ def test_controller_starts_chains_from_the_recognition_proposal_across_a_reopen(
     from ui.controller import Controller
 
     scene, tracks, truth = demo_frozen
-    loc = (math.log(truth[0]), truth[1], 0.001, 0.0)   # (uniform components: low, high)
-    q = Independence(("lognormal", "normal", "uniform", "uniform"), loc, (0.2, 0.02, 1.0, 1.0), 1)
+    loc = (math.log(truth[0]), truth[1], 0.001, 0.0, 0.0)   # (uniform components: low, high; last e_collision)
+    q = Independence(("lognormal", "normal", "uniform", "uniform", "uniform"), loc, (0.2, 0.02, 1.0, 1.0, 1.0), 1)
     info = {"starts": "recognition", "kind": "lenet", "labels": "test",
             "proposal": {"kinds": list(q.kinds), "loc": list(q.loc), "scale": list(q.scale)}}
 

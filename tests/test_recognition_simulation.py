@@ -132,12 +132,12 @@ def test_friction_read_from_held_out_simulations(model, scene):
 
 def test_masses_are_lognormal_in_the_prior(model, scene, template):
     pred = model.predict(scene, template)
-    assert set(pred) == {"m1_kg", "k1", "m2_kg", "k2"}
+    assert set(pred) == {"m1_kg", "k1", "m2_kg", "k2", "e_collision"}
     for name in ("m1_kg", "m2_kg"):
         loc, scale, kind = pred[name]
         assert kind == "lognormal" and math.log(0.001) - 1 < loc < 1 and scale > 0
     assert model.meta["labels"] == "simulation" and model.meta["simulations"] == SIMS
-    assert [e["transform"] for e in model.meta["latents"]] == ["log", "identity", "log", "identity"]
+    assert [e["transform"] for e in model.meta["latents"]] == ["log", "identity", "log", "identity", "identity"]
 
 
 def test_model_file_round_trip(model, scene, template, tmp_path):
@@ -184,7 +184,7 @@ def test_proposal_and_labels(model, scene, template):
     bounds = np.array([lat.bounds for lat in lats] + [(2.0, 3.0)], float)
     q = model.proposal(scene, template, names, bounds, every=3)
     assert isinstance(q, Independence) and q.every == 3
-    assert q.kinds == ("lognormal", "normal", "lognormal", "normal", "uniform")
+    assert q.kinds == ("lognormal", "normal", "lognormal", "normal", "normal", "uniform")   # (e_collision: normal)
     assert (q.loc[-1], q.scale[-1]) == (2.0, 3.0)
     rng = np.random.default_rng(0)
     x = np.array([q.sample(rng) for _ in range(500)])

@@ -122,7 +122,7 @@ MALFORMED = [
     (_pop(["objects"]), "objects"),
     (_set(["objects"], []), "objects"),
     (_pop(["ramp"]), "ramp"),
-    (_set(["version"], 2), "version"),
+    (_set(["version"], 3), "version"),
     (_set(["unit_m"], -0.02), "unit_m"),
 ]
 

@@ -352,7 +352,7 @@ BAD_RESULTS = {
                              "samples_file: other.samples.npz is not beside it in"),
     "samples_file_a_number": (setter(["samples_file"], 3), "samples_file: expected the name of a file"),
     "map_lacks_a_latent": (deleter(["map", "k1"]),
-                           "map: lacks latent 'k1' (the result's latents: m1_kg, k1, m2_kg, k2)"),
+                           "map: lacks latent 'k1' (the result's latents: m1_kg, k1, m2_kg, k2, e_collision)"),
     "map_lacks_a_latent_without_latents": (lambda d: (d["map"].pop("k2"), d.pop("latents")),
                                            "map: lacks latent 'k2'"),
     "map_value_a_string": (setter(["map", "m1_kg"], "0.3"), "map.m1_kg: expected a finite number, got '0.3'"),
@@ -394,9 +394,9 @@ def test_a_record_of_another_result_is_refused(result_dir, tmp_path, capsys):
     path = edited_result(result_dir, tmp_path, lambda d: None, keep_samples=False)
     np.savez(tmp_path / "result.samples.npz", names=np.array(["a", "b"]), samples=np.zeros((1, 2, 2)))
     rc, _, err = cli(capsys, "predict", "--result", path, "--angle-deg", 10)
-    assert_one_line(rc, err, "samples of shape (1, 2, 2), expected (chains, sweeps, 4)")
-    np.savez(tmp_path / "result.samples.npz", names=np.array(["m1_kg", "k1", "m2_kg", "k2"]),
-             samples=np.full((1, 2, 4), np.nan))
+    assert_one_line(rc, err, "samples of shape (1, 2, 2), expected (chains, sweeps, 5)")
+    np.savez(tmp_path / "result.samples.npz", names=np.array(["m1_kg", "k1", "m2_kg", "k2", "e_collision"]),
+             samples=np.full((1, 2, 5), np.nan))
     rc, _, err = cli(capsys, "predict", "--result", path, "--angle-deg", 10)
     assert_one_line(rc, err, "samples are not all finite numbers")
 

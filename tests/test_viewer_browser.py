@@ -3,6 +3,7 @@ software WebGL, driven by Playwright): typed settings applied exactly or refused
 visible reason, Remove chain asked and confirmed with the selection kept, steering errors
 shown in the page, the camera view letterboxed in a 1600 x 1000 window and per browser, and
 the progress bar the server set."""
+import math
 import re
 import time
 
@@ -321,8 +322,8 @@ def test_the_traces_show_every_sweep_while_the_chains_run(demo_dir, tmp_path, br
 
 
 def test_a_prior_edit_that_leaves_every_chain_out_says_so_and_restarts_them_inside(demo_dir, tmp_path, browser):
-    """Issue 24, item 5: k1's bounds set to [0.3, 0.6] while every chain stands near 0.22 (the
-    video's k1): the page says in orange how many chains were left out and where, and offers
+    """Issue 24, item 5: k1's bounds set to [lo, hi] above 0.3, where no sample lies, while every
+    chain stands near 0.22 (the video's k1): the page says in orange how many chains were left out and where, and offers
     to restart them; the MAP is no longer the sample outside the new prior; the histograms
     hold only draws inside it; Restart puts every chain inside it, each with a set_chain event."""
     from conftest import demo_viewer
@@ -333,13 +334,21 @@ def test_a_prior_edit_that_leaves_every_chain_out_says_so_and_restarts_them_insi
         k1 = {c: ctrl.position(c)["k1"] for c in ctrl.chain_ids()}
         assert all(x < 0.3 for x in k1.values()), k1
         assert ctrl.map()[2]["k1"] < 0.3
+        # the new bounds: the widest stretch above 0.3 that no sample's k1 (the chains' prior starts included) falls in
+        j = ctrl.names.index("k1")
+        ks = np.sort(np.concatenate([ctrl.samples(c)[:, j] for c in ctrl.chain_ids()]))
+        edges = np.r_[0.3, ks[ks > 0.3], 1.0]
+        i = int(np.argmax(np.diff(edges)))
+        lo, hi = math.ceil(edges[i] * 100 + 1) / 100, math.floor(edges[i + 1] * 100 - 1) / 100
+        assert hi - lo >= 0.05, edges
+        bounds = f"{lo:g}, {hi:g}"
         page.get_by_text("Priors and settings").click()
-        field(page, "k1 bounds").fill("0.3, 0.6")
-        assert wait_until(lambda: v.bound_inputs["k1"].value == "0.3, 0.6", 10)
+        field(page, "k1 bounds").fill(bounds)
+        assert wait_until(lambda: v.bound_inputs["k1"].value == bounds, 10)
         page.get_by_role("button", name="Apply").click()
         msg = page.locator('.galileo-message[data-ok="false"]').filter(has_text="3 of 3 chains stood outside")
         msg.wait_for(timeout=10000)
-        assert "k1 " in msg.inner_text() and "outside [0.3, 0.6]" in msg.inner_text()
+        assert "k1 " in msg.inner_text() and f"outside [{lo:g}, {hi:g}]" in msg.inner_text()
         assert msg.evaluate("e => getComputedStyle(e).color") == "rgb(201, 42, 42)"
         restart = page.get_by_role("button", name="Restart those chains inside the new prior")
         restart.wait_for(timeout=10000)
@@ -349,14 +358,14 @@ def test_a_prior_edit_that_leaves_every_chain_out_says_so_and_restarts_them_insi
         assert all(np.asarray(p.data[1]).sum() == 0 for n, p in v.hist_plots.items() if n == "k1")
         restart.click()
         # (a chain's position is set just before its set_chain event is recorded: wait for both)
-        assert wait_until(lambda: all(0.3 <= ctrl.position(c)["k1"] <= 0.6 for c in ctrl.chain_ids())
+        assert wait_until(lambda: all(lo <= ctrl.position(c)["k1"] <= hi for c in ctrl.chain_ids())
                           and [e["detail"]["chain"] for e in ctrl.events if e["kind"] == "set_chain"]
                           == ctrl.chain_ids(), 30), [e for e in ctrl.events if e["kind"] == "set_chain"]
         restart.wait_for(state="hidden", timeout=10000)
         ctrl.resume()              # (held at their target of 12 sweeps)
         ctrl.run_sweeps(2)
         m = ctrl.map()
-        assert m is not None and 0.3 <= m[2]["k1"] <= 0.6
+        assert m is not None and lo <= m[2]["k1"] <= hi
     finally:
         page.close()
         v.close()

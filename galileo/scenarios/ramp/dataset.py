@@ -130,8 +130,9 @@ def truth_json(scene: Scene, spec: VideoSpec, traj) -> dict:
     if scene.target is not None:
         t = scene.target
         latents.update({"m2_kg": t.mass_kg, "k2": t.friction, "shape2": t.shape.to_json()})
-        if scene.collision_restitution is not None:
-            latents["e_collision"] = scene.collision_restitution
+        # the collision's restitution: the preset's, else the pair's as Bullet combines the objects' own
+        e = scene.collision_restitution
+        latents["e_collision"] = float(e if e is not None else ro.restitution * t.restitution)
     return {"latents": latents, "trajectory": traj.to_json()}
 
 
