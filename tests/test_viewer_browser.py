@@ -69,12 +69,31 @@ def field(page, label: str):
     return lab.locator("xpath=ancestor::div[.//input][1]//input").first
 
 
+def folder(page, title: str, probe: str, shown: bool) -> None:
+    """Unfold (`shown`) or fold the GUI folder `title`, whose field `probe` shows when it is
+    unfolded: a click only when it is not already so, then a wait for the field (a click that
+    a busy browser drops while the folder still moves is made again)."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeoutError
+
+    f = field(page, probe)
+    for _ in range(3):
+        if f.is_visible() == shown:
+            return
+        page.get_by_text(title).click()
+        try:
+            f.wait_for(state="visible" if shown else "hidden", timeout=10000)
+            return
+        except PlaywrightTimeoutError:
+            continue
+    assert f.is_visible() == shown, f"the {title} folder did not {'unfold' if shown else 'fold'}"
+
+
 def test_typed_settings_are_applied_exactly_or_refused_with_the_reason(viewer, page):
     """Defect 2 in the browser: what the user types is what the server reads; a wrong field is
     refused with a visible reason naming it and its bound, and nothing is applied."""
     ctrl = viewer.ctrl
     try:
-        page.get_by_text("Priors and settings").click()
+        folder(page, "Priors and settings", "sigma_mps (m/s)", True)
         before = (dict(ctrl.settings.bounds), ctrl.settings.noise)
         for text, reason in (("1e308", "sigma_mps must be <= 10 m/s"), ("-1", "sigma_mps must be > 0.0001 m/s"),
                              ("abc", "sigma_mps: expected a number, got 'abc'")):
@@ -99,7 +118,7 @@ def test_typed_settings_are_applied_exactly_or_refused_with_the_reason(viewer, p
         in_force = page.locator("p").filter(has_text="In force:").first
         assert wait_until(lambda: "m1_kg [0.002, 0.9] kg" in in_force.inner_text(), 10)
     finally:
-        page.get_by_text("Priors and settings").click()     # folded again for the next test
+        folder(page, "Priors and settings", "sigma_mps (m/s)", False)     # folded again for the next test
 
 
 def test_remove_chain_is_confirmed_and_the_selection_stays(viewer, page):
@@ -109,7 +128,7 @@ def test_remove_chain_is_confirmed_and_the_selection_stays(viewer, page):
     try:
         viewer.follow_map.value = False
         viewer.chain_dropdown.value = "2"
-        page.get_by_text("Steering").click()
+        folder(page, "Steering", "m1_kg (kg)", True)
         page.get_by_role("button", name="Remove chain").click()
         confirm = page.get_by_role("button", name="Confirm: remove chain 2")
         confirm.wait_for(timeout=10000)
@@ -121,7 +140,7 @@ def test_remove_chain_is_confirmed_and_the_selection_stays(viewer, page):
         page.get_by_text(re.compile(r"^chain 1, sample \d+:")).wait_for(timeout=10000)   # the sample shown
         confirm.wait_for(state="hidden", timeout=10000)
     finally:
-        page.get_by_text("Steering").click()
+        folder(page, "Steering", "m1_kg (kg)", False)
 
 
 def test_steering_errors_are_shown_in_the_page(viewer, page):
@@ -130,7 +149,7 @@ def test_steering_errors_are_shown_in_the_page(viewer, page):
     try:
         chain = viewer._chain()
         before = ctrl.position(chain)
-        page.get_by_text("Steering").click()
+        folder(page, "Steering", "m1_kg (kg)", True)
         field(page, "m1_kg (kg)").fill("5")
         assert wait_until(lambda: viewer.set_inputs["m1_kg"].value == "5", 10)
         page.get_by_role("button", name="Set chain's latents").click()
@@ -139,7 +158,7 @@ def test_steering_errors_are_shown_in_the_page(viewer, page):
         assert msg.inner_text().startswith("Not done: m1_kg=5 is outside its prior bounds")
         assert ctrl.position(chain) == before
     finally:
-        page.get_by_text("Steering").click()
+        folder(page, "Steering", "m1_kg (kg)", False)
 
 
 def screenshot(page, **kw) -> np.ndarray:
@@ -342,7 +361,7 @@ def test_a_prior_edit_that_leaves_every_chain_out_says_so_and_restarts_them_insi
         lo, hi = math.ceil(edges[i] * 100 + 1) / 100, math.floor(edges[i + 1] * 100 - 1) / 100
         assert hi - lo >= 0.05, edges
         bounds = f"{lo:g}, {hi:g}"
-        page.get_by_text("Priors and settings").click()
+        folder(page, "Priors and settings", "sigma_mps (m/s)", True)
         field(page, "k1 bounds").fill(bounds)
         assert wait_until(lambda: v.bound_inputs["k1"].value == bounds, 10)
         page.get_by_role("button", name="Apply").click()

@@ -33,7 +33,8 @@ class RampScenario(Scenario):
     # is Gaussian, its restitution fixed
     paper_priors = {"observation": "gaussian", "infer_restitution": False}
     # running until converged: the move fitted to the warm-up joins, with its conditional moves
-    # (BENCHMARKS.md, issue 30: the demo converges in a median 69 s; the default moves had not after 187 s)
+    # (BENCHMARKS.md, issue 30: the demo converges in 497-547 sweeps with the restitution latent,
+    # 141-279 without; the default moves had not after 1,200)
     converge_moves = "fitted"
 
     # -- scene and observations ---------------------------------------------------------------------
