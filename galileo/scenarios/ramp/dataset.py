@@ -130,9 +130,7 @@ def truth_json(scene: Scene, spec: VideoSpec, traj) -> dict:
     if scene.target is not None:
         t = scene.target
         latents.update({"m2_kg": t.mass_kg, "k2": t.friction, "shape2": t.shape.to_json()})
-        # the collision's restitution: the preset's, else the pair's as Bullet combines the objects' own
-        e = scene.collision_restitution
-        latents["e_collision"] = float(e if e is not None else ro.restitution * t.restitution)
+        latents["e_collision"] = scene.collision_e()   # the preset's, else the objects' pair's
     return {"latents": latents, "trajectory": traj.to_json()}
 
 

@@ -342,9 +342,14 @@ class Scene(SceneFile):
         e1 * e2)."""
         out = {n: float(getattr(self.objects[i], a)) for n, (i, a) in LATENTS.items() if i < len(self.objects)}
         if "e_collision" in self.latent_names:
-            e = self.collision_restitution
-            out["e_collision"] = float(e if e is not None else self.objects[0].restitution * self.objects[1].restitution)
+            out["e_collision"] = self.collision_e()
         return out
+
+    def collision_e(self) -> float:
+        """The restitution of the ramp object's collision with the target: `collision_restitution`,
+        else the pair's as Bullet combines the objects' own (e1 * e2)."""
+        e = self.collision_restitution
+        return float(e if e is not None else self.objects[0].restitution * self.objects[1].restitution)
 
     def with_values(self, values: dict[str, float]) -> "Scene":
         """A copy with latents (m1_kg, k1, m2_kg, k2, e_collision) and knobs (offset_units,
