@@ -5,7 +5,7 @@
     python app.py --video V.mp4 --scene S.json     # your own video and its scene/camera file
     python app.py --upload                         # your own video, uploaded and calibrated in the browser
     python app.py --session sessions/<name>        # reopen a recorded session (paused: scrub it, Resume runs on)
-    python app.py --until-rhat 1.01 [--min-ess 400 --max-sweeps 1500]   # run on until every latent converged
+    python app.py --sweeps 75                      # the paper's fixed 75 sweeps, then pause (default: until converged)
 
 Tracks the video, starts the MCMC chains in background worker processes, serves the viewer
 (viser) on http://127.0.0.1:8080 and records the session under sessions/<timestamp>-<name>/.
@@ -123,8 +123,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="with --rerun web: the port of its gRPC server, which the viewer reads (default 9876)")
     p.add_argument("--chains", type=chains_int, default=None,
                    help="chains to start (default: the demo's, ramp 16, splash 50)")
-    p.add_argument("--sweeps", type=sweeps_int, default=75,
-                   help=f"sweeps per chain before it pauses (resume to go on; 1-{MAX_SWEEPS})")
+    p.add_argument("--sweeps", type=sweeps_int, default=None,
+                   help=f"alone: a fixed run, the sweeps per chain before the chains pause (resume to go on; "
+                        f"1-{MAX_SWEEPS}); with --until-rhat, the first block run on from (default: a new session "
+                        "runs until converged, from a first block of the scenario's 75)")
     p.add_argument("--moves", choices=["default", "paper", "fitted"], default=None,
                    help="default: widths adapted in a warm-up (the first half of --sweeps) plus the scenario's exact "
                         "joint moves; paper: Galileo section 3.2 exactly; fitted: default plus, once every chain is "
@@ -133,7 +135,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "converged: ramp fitted, the others default)")
     p.add_argument("--until-rhat", type=rhat_float, default=None, metavar="R",
                    help="after --sweeps, run on until every latent's R-hat <= R and its bulk and tail ESS >= "
-                        "--min-ess (e.g. 1.01), or until --max-sweeps; then pause")
+                        "--min-ess, or until --max-sweeps; then pause (default for a new session: 1.01, unless "
+                        "--sweeps N alone asks for a fixed run; a reopened session keeps its own)")
     p.add_argument("--min-ess", type=nonneg_float, default=None,
                    help="the ESS --until-rhat needs per latent (default 400)")
     p.add_argument("--max-sweeps", type=sweeps_int, default=None,
@@ -151,11 +154,14 @@ def parse_args(argv=None) -> argparse.Namespace:
                 "--share or --fix")
     if args.until_rhat is not None and not args.until_rhat > 1.0:
         p.error(f"--until-rhat must be above 1 (e.g. 1.01), got {args.until_rhat:g}")
-    if args.max_sweeps is not None:
-        if args.until_rhat is None:
-            p.error("--max-sweeps is the budget of --until-rhat; without it, use --sweeps")
-        if args.max_sweeps < args.sweeps:
-            p.error(f"--max-sweeps must be >= --sweeps ({args.sweeps}), got {args.max_sweeps}")
+    if args.max_sweeps is not None and args.until_rhat is None and (args.sweeps is not None or args.session):
+        p.error("--max-sweeps is the budget of --until-rhat; without it, use --sweeps")
+    if not args.session and args.until_rhat is None and args.sweeps is None:
+        # a new session runs until converged by default, as `galileo infer` does (issue 30); a
+        # reopened one keeps the criteria it was recorded with
+        from galileo.results import RHAT_TARGET
+
+        args.until_rhat = RHAT_TARGET
     if args.name is not None and not 0 < len(args.name.strip()) <= MAX_NAME:
         p.error(f"--name must be 1 to {MAX_NAME} characters, got {len(args.name.strip())}")
     from galileo.errors import GalileoError
@@ -173,14 +179,19 @@ def parse_args(argv=None) -> argparse.Namespace:
         args.scenario = args.scenario or registry.DEFAULT
         if args.scenario not in DEMOS:
             p.error(f"--scenario {args.scenario} has no built-in demo; these do: {', '.join(sorted(DEMOS))}")
-    if args.chains is None:   # the protocol of the scenario the run is of
-        name = args.scenario or registry.DEFAULT
-        if args.scene:
-            try:
-                name = registry.name_in(json.loads(Path(args.scene[0]).read_text()))
-            except (OSError, ValueError, GalileoError):
-                pass    # (the file is checked, with its own message, before anything starts)
-        args.chains = registry.get(name).protocol["chains"] if name in registry.names() else 16
+    # the protocol of the scenario the run is of fills --chains and --sweeps (the first block, or the
+    # target of a session recorded without one)
+    name = args.scenario or registry.DEFAULT
+    if args.scene:
+        try:
+            name = registry.name_in(json.loads(Path(args.scene[0]).read_text()))
+        except (OSError, ValueError, GalileoError):
+            pass    # (the file is checked, with its own message, before anything starts)
+    protocol = registry.get(name).protocol if name in registry.names() else {"chains": 16, "sweeps": 75}
+    args.chains = protocol["chains"] if args.chains is None else args.chains
+    args.sweeps = protocol["sweeps"] if args.sweeps is None else args.sweeps
+    if args.max_sweeps is not None and args.max_sweeps < args.sweeps:
+        p.error(f"--max-sweeps must be >= --sweeps ({args.sweeps}), got {args.max_sweeps}")
     return args
 
 
@@ -346,7 +357,8 @@ def start_chains(args, session: Path, scene, tracks, init=None, lock=None):
 
     min_ess = MIN_ESS if args.min_ess is None else args.min_ess
     # the app's chains can always be run until converged: by default the scenario's move set for it
-    moves = api.moves_for(registry.of(scene), args.moves, args.until_rhat, args.sweeps, converging=True)
+    moves = api.moves_for(registry.of(scene), args.moves, args.until_rhat, args.sweeps, converging=True,
+                          max_sweeps=args.max_sweeps)
     try:
         return Controller(scene, tracks, chains=args.chains, seed=args.seed, workers=args.workers,
                           session_dir=session, init=init, moves=moves, sweeps=args.sweeps,

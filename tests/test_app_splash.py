@@ -99,13 +99,25 @@ def test_command_line_picks_the_demo_and_its_chains():
     assert e.value.code == 2
 
 
-def test_command_line_moves_and_run_until_converged(capsys):
+def test_command_line_moves_and_run_until_converged(capsys, tmp_path):
+    # a new session runs until converged (R-hat <= 1.01, ESS >= 400) from a first block of the
+    # protocol's 75 sweeps, as galileo infer does; --sweeps N alone is the paper's fixed run
     args = app.parse_args([])
-    assert args.moves is None and args.until_rhat is None and args.min_ess is None and args.max_sweeps is None
+    assert args.moves is None and args.until_rhat == 1.01 and args.sweeps == 75
+    assert args.min_ess is None and args.max_sweeps is None
+    args = app.parse_args(["--sweeps", "75"])
+    assert args.until_rhat is None and args.sweeps == 75
+    args = app.parse_args(["--sweeps", "40", "--until-rhat", "1.05"])
+    assert (args.sweeps, args.until_rhat) == (40, 1.05)
+    assert app.parse_args(["--max-sweeps", "600"]).max_sweeps == 600     # the default run's budget
+    # a reopened session keeps the criteria it was recorded with
+    assert app.parse_args(["--session", str(tmp_path)]).until_rhat is None
     args = app.parse_args(["--moves", "paper", "--until-rhat", "1.01", "--min-ess", "100", "--max-sweeps", "300"])
     assert (args.moves, args.until_rhat, args.min_ess, args.max_sweeps) == ("paper", 1.01, 100.0, 300)
     for bad, why in ((["--moves", "fancy"], "invalid choice"), (["--until-rhat", "0.99"], "above 1"),
-                     (["--max-sweeps", "500"], "budget of --until-rhat"),
+                     (["--sweeps", "75", "--max-sweeps", "500"], "budget of --until-rhat"),
+                     (["--session", str(tmp_path), "--max-sweeps", "500"], "budget of --until-rhat"),
+                     (["--max-sweeps", "50"], "--max-sweeps must be >= --sweeps (75)"),
                      (["--until-rhat", "1.01", "--max-sweeps", "50"], "--max-sweeps must be >= --sweeps"),
                      (["--until-rhat", "1.01", "--min-ess", "-1"], "--min-ess")):
         with pytest.raises(SystemExit) as e:
