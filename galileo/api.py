@@ -79,13 +79,13 @@ def track(video: str | Path, scene, *, progress: bool = True, debug_video: str |
 # -- inference -------------------------------------------------------------------------------------
 
 def moves_for(scenario, moves: str | None, until_rhat: float | None, sweeps: int | None = None,
-              warmup: int | None = None, *, converging: bool | None = None) -> str:
+              warmup: int | None = None, *, converging: bool | None = None, max_sweeps: int | None = None) -> str:
     """The move set a run uses: `moves` if given; else, for a run that may go on until converged
     (`converging`; by default: `until_rhat` is given), the scenario's `converge_moves` (the ramp's
     "fitted"), and "default" for a fixed number of sweeps (the paper's protocol's budget, whose
     figures BENCHMARKS.md reports). The app's chains can always be run until converged
     (`converging=True`). "fitted" needs a warm-up to fit to: where `sweeps`, `warmup` and
-    `until_rhat` leave too short a one (`RunConfig.warmup_sweeps`), "default"."""
+    `until_rhat` (and its `max_sweeps`) leave too short a one (`RunConfig.warmup_sweeps`), "default"."""
     from .runner import FITTED_MIN_WARMUP, RunConfig
 
     if moves is not None:
@@ -93,7 +93,7 @@ def moves_for(scenario, moves: str | None, until_rhat: float | None, sweeps: int
     if not (until_rhat is not None if converging is None else converging):
         return "default"
     if scenario.converge_moves == "fitted" and sweeps is not None and RunConfig(
-            sweeps=sweeps, until_rhat=until_rhat, warmup=warmup).warmup_sweeps() < FITTED_MIN_WARMUP:
+            sweeps=sweeps, until_rhat=until_rhat, warmup=warmup, max_sweeps=max_sweeps).warmup_sweeps() < FITTED_MIN_WARMUP:
         return "default"
     return scenario.converge_moves
 
@@ -141,7 +141,8 @@ def run_config(scenario, *, chains: int | None = None, sweeps: int | None = None
     cfg = RunConfig(chains=protocol["chains"] if chains is None else chains,
                     sweeps=sweeps, seed=seed, workers=workers, noise=sigma,
                     speedups=speedups, narrow=narrow, broad=broad, broad_every=broad_every,
-                    moves=moves_for(scenario, moves, until_rhat, sweeps, warmup), warmup=warmup, until_rhat=until_rhat,
+                    moves=moves_for(scenario, moves, until_rhat, sweeps, warmup, max_sweeps=max_sweeps), warmup=warmup,
+                    until_rhat=until_rhat,
                     min_ess=float(MIN_ESS if min_ess is None else min_ess), max_sweeps=max_sweeps,
                     max_seconds=max_seconds, priors=priors)
     cfg.check()
@@ -536,7 +537,8 @@ def _calibrate(scenario: str, out: str | Path, *, n, videos, draws, scenes, seed
     chains = DEFAULT_CHAINS if chains is None else chains
     sweeps = DEFAULT_SWEEPS if sweeps is None else sweeps
     draws = DEFAULT_DRAWS if draws is None else draws
-    moves = moves_for(registry.get(scenario), moves, until_rhat, sweeps)   # an unknown scenario fails here, named
+    # (an unknown scenario fails here, named)
+    moves = moves_for(registry.get(scenario), moves, until_rhat, sweeps, max_sweeps=max_sweeps)
     for what, v, lo in (("chains", chains, 1), ("sweeps", sweeps, 1), ("draws", draws, 1),
                         ("workers", workers, 1), ("seed", seed, 0), ("n", n, 1)):
         if v is not None and v < lo:

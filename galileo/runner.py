@@ -14,7 +14,8 @@ prior, `initial_positions(bounds, c + 1, seed)[c]`; the splash starts as its see
 Move sets (`RunConfig.moves`): "paper" is Galileo 3.2 as published; "default" adds warm-up
 adaptation of the widths and joint moves (`default_moves`: the scenario's own and an
 adaptive joint random walk); "fitted" adds, after the warm-up, an independence
-move fitted to every chain's warm-up draws (`fitted_move`; `infer`, and the app's controller
+move fitted to every chain's warm-up draws, with its conditional moves and marginal moves
+(`fitted_move`, `fitted_marginals`, `fitted_moves`; `infer`, and the app's controller
 once every chain is past the warm-up): from then on a chain depends on
 the others' warm-ups too (still only on the seed and the settings). A task carries its chain's adapted widths and moves, so a
 chain continued in another task (`next_task`: the batch runner's blocks when it runs until
@@ -66,6 +67,11 @@ FITTED_PER_SWEEP = 12                       # "fitted": its proposals a sweep af
                                             # in 757, 337, 225 sweeps with 3, 6, 12: each accepted one is a fresh draw)
 FITTED_CONDITIONALS = 1                     # "fitted": proposals a sweep of each latent from q's conditional (the demo
                                             # converged in a median 209 sweeps over 5 seeds, 141-279; without, 372, 279-1071)
+FITTED_MARGINALS = 2                        # "fitted": proposals a sweep of each latent the others barely determine
+                                            # from its warm-up draws' density (the demo: k1 and e_collision; it
+                                            # converged in a median 279 sweeps over 5 seeds, 156-803; without,
+                                            # 497-547 over 3: k1's narrow second mode; 4 a sweep: 410 on seeds 0, 4)
+MARGINAL_MIN_SD_RATIO = 0.5                 # ... "barely determine": its conditional sd under q at least this of its own
 FITTED_MIN_WARMUP = 10                      # "fitted": fewer warm-up sweeps than this fit nothing
 UNTIL_WARMUP_SWEEPS = 100
 PROGRESS_PIECE_S = 2.0   # with a progress bar, `infer` runs each chain in pieces of about this long
@@ -184,9 +190,9 @@ class RunConfig:
             return 0
         if self.warmup is not None:
             return int(self.warmup)
-        if self.until_rhat:
+        if self.until_rhat and self.sweep_budget() > self.sweeps:
             return int(max(self.sweeps // 2, min(UNTIL_WARMUP_SWEEPS, self.sweeps)))
-        return int(self.sweeps // 2)
+        return int(self.sweeps // 2)    # (a budget of the first block alone: a fixed run's, draws kept)
 
     def sweep_budget(self) -> int:
         return int(self.max_sweeps if self.max_sweeps is not None else max(self.sweeps, 20 * self.sweeps))
@@ -214,9 +220,13 @@ class RunConfig:
             raise GalileoError(f"seed must be an integer >= 0, got {self.seed!r}")
         if self.moves not in MOVE_SETS:
             raise GalileoError(f"moves must be one of {', '.join(MOVE_SETS)}, got {self.moves!r}")
+        # (a run that keeps no draw after its warm-up has no posterior: a fixed run's warm-up ends
+        # before its last sweep; one run until converged may end with its first block)
+        most = self.sweeps if self.until_rhat and self.sweep_budget() > self.sweeps else self.sweeps - 1
         if self.warmup is not None and (isinstance(self.warmup, bool) or int(self.warmup) != self.warmup
-                                        or not 0 <= self.warmup <= self.sweeps):
-            raise GalileoError(f"warmup must be an integer from 0 to the sweeps ({self.sweeps}), got {self.warmup!r}")
+                                        or not 0 <= self.warmup <= most):
+            raise GalileoError(f"warmup must be an integer from 0 to {most} (a run of {self.sweeps} sweeps keeps "
+                               f"the draws after it), got {self.warmup!r}")
         if self.moves == "fitted" and self.warmup_sweeps() < FITTED_MIN_WARMUP:
             raise GalileoError(f"moves fitted needs a warm-up of at least {FITTED_MIN_WARMUP} sweeps to fit its move to "
                                f"(this run's: {self.warmup_sweeps()}; --warmup, or more --sweeps)")
@@ -544,8 +554,9 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
     moves), each exact; the kept draws (after max(warm-up, half the chain)) come from one
     fixed kernel. "fitted" runs the warm-up alone first, then adds to every chain
     FITTED_PER_SWEEP proposals a sweep of an independence move fitted to all chains' warm-up
-    draws (`fitted_move`) and FITTED_CONDITIONALS of each latent from its conditional given the
-    others (`fitted_moves`), frozen from then on.
+    draws (`fitted_move`), FITTED_CONDITIONALS of each latent from its conditional given the
+    others and FITTED_MARGINALS of each latent the others barely determine from its warm-up
+    draws' density (`fitted_marginals`, `fitted_moves`), frozen from then on.
 
     With `config.until_rhat`, chains run `config.sweeps` sweeps and then on, in blocks of a
     tenth of what they have done (at least 10: `block_after`), until every latent's rank-normalised split R-hat is at
@@ -604,7 +615,8 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
                 if n_done == fit_at:
                     q = fitted_move(latents, bounds, [np.concatenate([r["positions"] for r in rs]) for rs in done],
                                     warmup)
-                    moves = moves + fitted_moves(q)
+                    moves = moves + fitted_moves(q, marginals=fitted_marginals(
+                        latents, bounds, [np.concatenate([r["positions"] for r in rs]) for rs in done], warmup, q))
                     if n_done < cfg.sweeps:
                         tasks = _joined([next_task(tasks[c], done[c][-1], cfg.sweeps - n_done)
                                          for c in range(cfg.chains)], moves)
@@ -621,7 +633,10 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
                     left_s = cfg.max_seconds - (time.perf_counter() - t0)
                     pace = (time.perf_counter() - t_first) / max(n_done - first_done, 1) if first_done else None
                     if left_s <= 0 or (pace and left_s < pace * min(MIN_BLOCK_SWEEPS, more)):
-                        stopped = "max_seconds"
+                        if n_done > warmup:
+                            stopped = "max_seconds"
+                        else:   # no draw kept yet (the warm-up outlasted the budget): one short block more
+                            more = min(MIN_BLOCK_SWEEPS, more)
                     elif pace:
                         more = max(min(more, int(left_s / pace)), min(MIN_BLOCK_SWEEPS, more))
                 if stopped:
@@ -727,18 +742,44 @@ def fitted_move(latents: Sequence[Latent], bounds: np.ndarray, chains: Sequence[
     return fit_independence(draws, sites, _log_sites(latents, bounds, sites), bounds)
 
 
-def fitted_moves(q, per_sweep: int | None = None, conditionals: int | None = None) -> tuple:
+def fitted_marginals(latents: Sequence[Latent], bounds: np.ndarray, chains: Sequence[np.ndarray], warmup: int,
+                     q) -> tuple:
+    """The "fitted" move set's marginal moves (`galileo.mcmc.FittedMarginal`): one for each
+    latent of q that the others barely determine (under q's scale, its conditional sd given
+    them at least MARGINAL_MIN_SD_RATIO of its own: a proposal from its marginal is then about
+    as likely accepted as one from its conditional, and it proposes every region the warm-up
+    visited), fitted to the second half of every chain's warm-up draws pooled (`fitted_move`'s
+    draws); none without q."""
+    from .mcmc import conditionals_of, fit_marginal
+
+    if q is None:
+        return ()
+    scale = np.asarray(q.chol, float)
+    sd = np.sqrt(np.diag(scale @ scale.T))
+    draws = np.concatenate([np.asarray(c, float)[warmup // 2:warmup] for c in chains])
+    out = []
+    for k, cond in enumerate(conditionals_of(q)):
+        if math.sqrt(cond.var) >= MARGINAL_MIN_SD_RATIO * sd[k]:
+            out.append(fit_marginal(draws[:, cond.site], cond.site, cond.log, bounds[cond.site]))
+    return tuple(m for m in out if m is not None)
+
+
+def fitted_moves(q, per_sweep: int | None = None, conditionals: int | None = None, marginals: tuple = (),
+                 marginals_per_sweep: int | None = None) -> tuple:
     """The moves the fitted q adds to every chain after the warm-up: `per_sweep`
     (FITTED_PER_SWEEP) joint proposals from q, then `conditionals` (FITTED_CONDITIONALS) of each
-    latent from q's conditional given the others (`galileo.mcmc.FittedConditional`); none
-    without a q. (The app records both counts with q: a session keeps the kernel it ran.)"""
+    latent from q's conditional given the others (`galileo.mcmc.FittedConditional`), then
+    `marginals_per_sweep` (FITTED_MARGINALS) of each of the `marginals` (`fitted_marginals`);
+    none without a q. (The app records the counts and the marginals with q: a session keeps
+    the kernel it ran.)"""
     from .mcmc import conditionals_of
 
     per_sweep = FITTED_PER_SWEEP if per_sweep is None else int(per_sweep)
     conditionals = FITTED_CONDITIONALS if conditionals is None else int(conditionals)
+    marginals_per_sweep = FITTED_MARGINALS if marginals_per_sweep is None else int(marginals_per_sweep)
     if q is None:
         return ()
-    return (q,) * per_sweep + conditionals_of(q) * conditionals
+    return (q,) * per_sweep + conditionals_of(q) * conditionals + tuple(marginals) * marginals_per_sweep
 
 
 def _log_sites(latents: Sequence[Latent], bounds: np.ndarray, sites: Sequence[int]) -> list[int]:

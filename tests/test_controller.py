@@ -145,7 +145,7 @@ def test_the_fitted_move_set_equals_the_batch_runner_and_comes_back_with_the_ses
     fitted to their warm-ups joins every chain's moves, as in `galileo infer --moves fitted`:
     the same chains bit for bit; recorded once ("fitted", q in full); a reopened session runs
     on with it, as the chains that never stopped do; too short a warm-up is refused."""
-    from galileo.runner import FITTED_PER_SWEEP
+    from galileo.runner import FITTED_MARGINALS, FITTED_PER_SWEEP
 
     res = infer(*demo, InferenceConfig(chains=3, sweeps=14, warmup=10, seed=2, workers=1, moves="fitted"),
                 progress=False)
@@ -158,6 +158,12 @@ def test_the_fitted_move_set_equals_the_batch_runner_and_comes_back_with_the_ses
     assert np.isin(ctl.proposals(0)["site"], fitted_sites).sum() == 4 * FITTED_PER_SWEEP   # sweeps 11-14
     assert ctl.status()["moves"]["joint"].count("fitted") == 1
     assert ctl.status()["moves"]["acceptance"]["fitted"] == res.diagnostics()["acceptance"]["fitted_move"]
+    # the marginal moves of the latents the others barely determine (k1, e_collision here) with q
+    marginals = fits[0]["detail"]["marginals"]
+    assert marginals and {m["type"] for m in marginals} == {"FittedMarginal"}
+    assert fits[0]["detail"]["marginals_per_sweep"] == FITTED_MARGINALS
+    assert np.isin(ctl.proposals(0)["site"], res.moves["codes"]["fitted_marginal"]).sum() == (
+        4 * FITTED_MARGINALS * len(marginals))
     # on past the target: the chains that stopped and reopened are the chains that never stopped
     on = make(chains=3, seed=2, workers=1, moves="fitted", sweeps=14, warmup=10)
     on.run_sweeps(14)
@@ -178,11 +184,12 @@ def test_the_fitted_move_set_equals_the_batch_runner_and_comes_back_with_the_ses
 
 
 def test_a_session_fitted_before_the_conditional_moves_reopens_with_the_kernel_it_ran(demo, make, tmp_path):
-    """The "fitted" event records how many joint proposals and conditional moves joined with q;
-    a session recorded before the conditional moves (no counts: 12 joint, none) gives a chain made
-    after reopening those 12 and no conditional move, and a session of today all of them."""
-    from galileo.mcmc import FittedConditional, FittedIndependence
-    from galileo.runner import FITTED_CONDITIONALS, FITTED_PER_SWEEP
+    """The "fitted" event records how many joint proposals, conditional and marginal moves joined
+    with q, and the marginals; a session recorded before the conditional and marginal moves (no
+    counts: 12 joint, none) gives a chain made after reopening those 12 and no conditional or
+    marginal move, and a session of today all of them."""
+    from galileo.mcmc import FittedConditional, FittedIndependence, FittedMarginal
+    from galileo.runner import FITTED_CONDITIONALS, FITTED_MARGINALS, FITTED_PER_SWEEP
     from ui.session import CHAINS_FILE, EVENTS_FILE
 
     ctl = make(chains=2, seed=2, workers=1, moves="fitted", sweeps=12, warmup=10, session_dir=tmp_path / "s")
@@ -196,25 +203,32 @@ def test_a_session_fitted_before_the_conditional_moves_reopens_with_the_kernel_i
         try:
             moves = back._moves0
             return (sum(isinstance(m, FittedIndependence) for m in moves),
-                    sorted(m.site for m in moves if isinstance(m, FittedConditional)))
+                    sorted(m.site for m in moves if isinstance(m, FittedConditional)),
+                    sorted(m.site for m in moves if isinstance(m, FittedMarginal)))
         finally:
             back.close()
 
-    assert kinds(tmp_path / "s") == (FITTED_PER_SWEEP, sorted(list(range(len(NAMES))) * FITTED_CONDITIONALS))
+    fit = next(e for e in ctl.events if e["kind"] == "fitted")["detail"]
+    marginal_sites = sorted([m["site"] for m in fit["marginals"]] * FITTED_MARGINALS)
+    assert marginal_sites and fit["marginals_per_sweep"] == FITTED_MARGINALS
+    assert kinds(tmp_path / "s") == (FITTED_PER_SWEEP, sorted(list(range(len(NAMES))) * FITTED_CONDITIONALS),
+                                     marginal_sites)
     # the session as it was recorded before: no counts in the event, no conditional moves in the chains
     path = tmp_path / "s" / EVENTS_FILE
     doc = json.loads(path.read_text())
     for e in doc["events"]:
         if e["kind"] == "fitted":
             del e["detail"]["per_sweep"], e["detail"]["conditionals"]
+            del e["detail"]["marginals"], e["detail"]["marginals_per_sweep"]
     path.write_text(json.dumps(doc))
     path = tmp_path / "s" / CHAINS_FILE
     text = path.read_text()
     doc = json.loads(text)
     dropped = _drop_moves(doc, "FittedConditional")
     assert dropped == 2 * len(NAMES) * FITTED_CONDITIONALS, dropped      # two chains' conditional moves
+    assert _drop_moves(doc, "FittedMarginal") == 2 * len(marginal_sites)
     path.write_text(json.dumps(doc))
-    assert kinds(tmp_path / "s") == (12, [])
+    assert kinds(tmp_path / "s") == (12, [], [])
 
 
 def _drop_moves(node, kind: str) -> int:

@@ -49,6 +49,27 @@ def test_a_wall_clock_budget_stops_between_blocks_says_so_and_reruns_exactly(fro
     assert easy.stopped == "converged" and easy.diagnostics()["converged"]
 
 
+def test_a_budget_spent_within_the_warm_up_still_keeps_draws(frozen):
+    """A found bug: on `full`, a video whose first block (all warm-up) outlasted --max-seconds
+    stopped with no draw kept and failed with an IndexError. Now a time budget spent within
+    the warm-up runs one short block more (MIN_BLOCK_SWEEPS) and says "max_seconds"; a sweep
+    budget of the first block alone warms up over half of it, as a fixed run does; and a fixed
+    run whose warm-up is all of it is refused in one line."""
+    from galileo.runner import MIN_BLOCK_SWEEPS
+
+    scene, tracks, _ = frozen
+    cfg = dict(chains=2, sweeps=12, seed=5, workers=1, until_rhat=1.000001)
+    late = infer(scene, tracks, RunConfig(max_seconds=1e-6, **cfg), progress=False)
+    assert late.stopped == "max_seconds" and late.warmup == 12
+    assert late.samples.shape[1] == 12 + MIN_BLOCK_SWEEPS
+    assert late.posterior()["k1"]["q50"] == pytest.approx(np.median(late.samples[:, 12:, 1]))
+    short = infer(scene, tracks, RunConfig(max_sweeps=12, **cfg), progress=False)
+    assert short.stopped == "max_sweeps" and short.warmup == 6 and short.samples.shape[1] == 12
+    assert np.isfinite(short.posterior()["k1"]["q50"])
+    with pytest.raises(GalileoError, match="warmup must be an integer from 0 to 11"):
+        infer(scene, tracks, RunConfig(chains=2, sweeps=12, workers=1, warmup=12), progress=False)
+
+
 def test_default_moves_bring_every_chain_off_the_at_rest_plateau(frozen):
     """The paper's moves leave chains far below the MAP after 40 sweeps (some with k1 > tan 20
     deg, on the plateau where the block never moves); the k1 move from the tracked

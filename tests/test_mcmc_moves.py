@@ -316,3 +316,123 @@ def test_fitted_independence_leaves_out_a_chain_the_warm_up_left_far_away():
     assert np.allclose(q.loc, [math.log(0.3), 0.4], atol=0.01)
     cov = np.asarray(q.chol) @ np.asarray(q.chol).T / FITTED_INFLATE ** 2
     assert np.allclose(cov, cov_true, rtol=0.15)
+
+
+# -- the fitted marginal move: a kernel density estimate of one latent's warm-up draws (issue 30) ----
+
+# a bulk and, 0.3 to its right, a narrow mode with 6% of the mass (the ramp's k1 has one)
+SPIKED = (0.94, stats.norm(0.30, 0.05), 0.06, stats.norm(0.60, 0.004))
+
+
+def _spiked_cdf(v):
+    w0, bulk, w1, spike = SPIKED
+    return w0 * bulk.cdf(v) + w1 * spike.cdf(v)
+
+
+def _spiked_logdensity(x, threshold=None):
+    w0, bulk, w1, spike = SPIKED
+    if x[1] <= 0:
+        return -math.inf
+    return float(np.logaddexp(math.log(w0) + bulk.logpdf(x[0]), math.log(w1) + spike.logpdf(x[0]))
+                 + stats.lognorm(0.3, scale=0.5).logpdf(x[1]))
+
+
+def test_fitted_marginals_sample_a_narrow_mode_and_fail_without_their_hastings_factor():
+    """Fitted to 'warm-up' draws that over-visit the narrow mode (a quarter of them there, against
+    6%) and miss the bulk's centre and width, in one plain and one log site: the chain samples
+    the target, the narrow mode's mass included; without the factor it keeps q's bias."""
+    from galileo.mcmc import fit_marginal
+
+    rng = np.random.default_rng(3)
+    warm = np.r_[rng.normal(0.32, 0.035, 300), rng.normal(0.60, 0.004, 100)]
+    bounds = [(0.0, 1.0), (0.01, 5.0)]
+    moves = (fit_marginal(warm, 0, False, bounds[0]),
+             fit_marginal(rng.lognormal(math.log(0.6), 0.25, 400), 1, True, bounds[1]))
+    good = _chain(_spiked_logdensity, [0.5, 0.5], bounds, moves)
+    assert stats.kstest(good[:, 0], _spiked_cdf).pvalue > 1e-3
+    assert stats.kstest(good[:, 1], stats.lognorm(0.3, scale=0.5).cdf).pvalue > 1e-3
+    assert abs((good[:, 0] > 0.5).mean() - 0.06) < 0.015
+    bad = _chain(_spiked_logdensity, [0.5, 0.5], bounds, moves, hastings=False)
+    assert stats.kstest(bad[:, 0], _spiked_cdf).pvalue < 1e-6
+    assert stats.kstest(bad[:, 1], stats.lognorm(0.3, scale=0.5).cdf).pvalue < 1e-6
+
+
+def test_a_fitted_marginal_enters_and_leaves_a_narrow_mode_far_more_often_than_a_t_around_the_bulk():
+    """The reason it exists: a t fitted to the same draws (FittedIndependence in one site, the
+    conditional's kind) proposes the narrow mode, 6 of its scales out, so rarely that a chain
+    crosses a few times in 2,000 sweeps; the marginal crosses hundreds of times."""
+    from galileo.mcmc import fit_independence, fit_marginal
+
+    rng = np.random.default_rng(4)
+    warm = np.r_[rng.normal(0.30, 0.05, 376), rng.normal(0.60, 0.004, 24)]
+    bounds = [(0.0, 1.0), (0.01, 5.0)]
+    logd = lambda x, threshold=None: _spiked_logdensity([x[0], 0.5])    # noqa: E731 (one latent moves)
+
+    def crossings(move, n=2000):
+        rng, state, inside = chain_rng(0, 0), MHState(np.array([0.3, 0.5]), logd([0.3, 0.5]), 0), []
+        for _ in range(n):
+            state, _ = step_move(rng, state, move, logd, np.array(bounds), True, -2)
+            inside.append(state.position[0] > 0.5)
+        return int(np.abs(np.diff(np.asarray(inside, int))).sum())
+
+    # (expected: about 15 for the t, whose proposals land in the narrow mode 0.4% of the time and
+    # leave it 7% of the time; for the marginal, whose kernels (Silverman's bandwidth, 0.015, set
+    # by the bulk) are wider than the narrow mode (0.004), about 90 over seeds 0-2: 80-106)
+    t = crossings(fit_independence(warm[:, None], (0,), (), np.array([bounds[0]])))
+    marginal = crossings(fit_marginal(warm, 0, False, bounds[0]))
+    assert t < 40 and marginal > 60 and marginal > 2.5 * t, (t, marginal)
+
+
+def test_fitted_marginal_density_integrates_to_one_and_is_zero_outside_the_prior():
+    from galileo.mcmc import fit_marginal
+
+    rng = np.random.default_rng(5)
+    for log, lo, hi, draws in ((False, 0.0, 1.0, rng.normal(0.2, 0.1, 500)),
+                               (True, 0.01, 2.0, rng.lognormal(math.log(0.2), 0.5, 500))):
+        q = fit_marginal(draws, 0, log, (lo, hi))
+        xs = np.exp(np.linspace(math.log(lo), math.log(hi), 400001)) if log else np.linspace(lo, hi, 400001)
+        dens = np.exp([q.logq(x) for x in xs])
+        # the kernels' mass outside the prior's range is lost (the proposal is refused there)
+        inside = np.mean([stats.norm(c, q.bandwidth).cdf(math.log(hi) if log else hi)
+                          - stats.norm(c, q.bandwidth).cdf(math.log(lo) if log else lo) for c in q.centres])
+        assert abs(np.trapezoid(dens, xs) - (q.weight * inside + 1 - q.weight)) < 1e-4
+        assert q.logq(hi * 1.01 + 0.01) == -math.inf and q.logq(lo - 0.01) == -math.inf
+
+
+def test_fitted_marginal_takes_silvermans_bandwidth_and_refuses_bad_draws():
+    from galileo.mcmc import MARGINAL_CENTRES, fit_marginal
+
+    rng = np.random.default_rng(6)
+    draws = rng.normal(0.4, 0.1, 5000)
+    q = fit_marginal(draws, 2, False, (0.0, 1.0))
+    assert q.site == 2 and len(q.centres) == MARGINAL_CENTRES
+    # 0.9 min(sd, IQR / 1.34) n^-1/5 for a normal of sd 0.1 over 5,000 draws
+    assert q.bandwidth == pytest.approx(0.9 * 0.1 * 5000 ** -0.2, rel=0.05)
+    x, _ = q.propose(chain_rng(0, 0), [0.5, 0.5, 0.5])
+    assert x[0] == 0.5 and x[1] == 0.5 and x[2] != 0.5                  # the others unchanged
+    assert fit_marginal(draws[:5], 0, False, (0.0, 1.0)) is None
+    assert fit_marginal(np.r_[draws, np.nan], 0, False, (0.0, 1.0)) is None
+    assert fit_marginal(draws - 1.0, 0, True, (0.01, 1.0)) is None      # a log site at or below 0
+    with pytest.raises(ValueError):
+        q._replace(bandwidth=0.0).check(3)
+    with pytest.raises(ValueError):
+        q.check(2)                                                      # its site outside the latents
+
+
+def test_the_fitted_set_adds_marginals_only_for_latents_the_others_barely_determine():
+    """Two latents almost a function of each other (correlation 0.99: conditional sd 14% of their
+    own) get none; a third, independent of them, gets one, fitted to its own draws."""
+    from galileo.mcmc import fit_independence
+    from galileo.runner import MARGINAL_MIN_SD_RATIO, fitted_marginals
+
+    rng = np.random.default_rng(7)
+    y = rng.multivariate_normal([0.0, 0.0, 0.5], [[1.0, 0.99, 0.0], [0.99, 1.0, 0.0], [0.0, 0.0, 0.01]], 2000)
+    draws = np.c_[0.5 + 0.1 * y[:, 0], 0.5 + 0.1 * y[:, 1], y[:, 2]]
+    bounds = np.array([(0.0, 1.0), (0.0, 1.0), (0.0, 1.0)])
+    q = fit_independence(draws, (0, 1, 2), (), bounds)
+    latents = [type("L", (), {"integer": False, "limits": (0.0, 1.0), "unit": "1"})()] * 3
+    (m,) = fitted_marginals(latents, bounds, [np.r_[draws[:1000], draws[:1000]], np.r_[draws[1000:], draws[1000:]]],
+                            1000, q)
+    assert m.site == 2 and not m.log and MARGINAL_MIN_SD_RATIO < 1
+    assert np.mean(m.centres) == pytest.approx(0.5, abs=0.01)
+    assert fitted_marginals(latents, bounds, [draws], 1000, None) == ()

@@ -95,10 +95,10 @@ from galileo.joint import tracks_from_json, tracks_to_json
 from galileo.latents import as_number, by_name, check_bounds, check_noise, check_widths
 from galileo.mcmc import chain_rng, move_code
 from galileo.results import MIN_ESS, RHAT_TARGET, burn_in, convergence, derived_summaries, identified
-from galileo.runner import (FITTED_CONDITIONALS, FITTED_MIN_WARMUP, FITTED_PER_SWEEP, MIN_BLOCK_SWEEPS, MOVE_SETS,
-                            PROPOSAL_FIELDS, ChainTask, LocalPool,
+from galileo.runner import (FITTED_CONDITIONALS, FITTED_MARGINALS, FITTED_MIN_WARMUP, FITTED_PER_SWEEP,
+                            MIN_BLOCK_SWEEPS, MOVE_SETS, PROPOSAL_FIELDS, ChainTask, LocalPool,
                             Problem, RunConfig, Settings, WorkerDied, WorkerHung, block_after, default_moves,
-                            fitted_move, fitted_moves, run_task, scene_for_moves)
+                            fitted_marginals, fitted_move, fitted_moves, run_task, scene_for_moves)
 
 from . import session as sess
 
@@ -260,7 +260,7 @@ class Controller:
         self.moves_set = moves
         # the warm-up as `galileo infer` takes it for these sweeps (none with "paper")
         self._warmup = RunConfig(sweeps=sweeps or PAPER_SWEEPS, moves=moves, warmup=warmup,
-                                 until_rhat=until_rhat).warmup_sweeps()
+                                 until_rhat=until_rhat, max_sweeps=max_sweeps).warmup_sweeps()
         if moves == "fitted" and self._warmup < FITTED_MIN_WARMUP:
             raise GalileoError(f"moves fitted needs a warm-up of at least {FITTED_MIN_WARMUP} sweeps to fit its move to "
                                f"(this session's: {self._warmup}; more sweeps)")
@@ -521,15 +521,19 @@ class Controller:
         if len(ready) < 2 or any(ch.sweep < self._warmup and not ch.paused for ch in active):
             return
         self._fitted = True
-        q = fitted_move(self.latents, self._bounds_array(), [ch.samples.get() for ch in ready], self._warmup)
+        warm = [ch.samples.get() for ch in ready]
+        q = fitted_move(self.latents, self._bounds_array(), warm, self._warmup)
+        marginals = fitted_marginals(self.latents, self._bounds_array(), warm, self._warmup, q)
         if q is not None:
-            more = fitted_moves(q)
+            more = fitted_moves(q, marginals=marginals)
             for ch in active:
                 ch.moves = tuple(ch.moves) + more
             self._moves0 = tuple(self._moves0) + more
         self._event("fitted", {"chains": [ch.id for ch in ready], "sweep": self._warmup,
                                "move": None if q is None else sess.move_to_json(q),
-                               "per_sweep": FITTED_PER_SWEEP, "conditionals": FITTED_CONDITIONALS})
+                               "per_sweep": FITTED_PER_SWEEP, "conditionals": FITTED_CONDITIONALS,
+                               "marginals": [sess.move_to_json(m) for m in marginals],
+                               "marginals_per_sweep": FITTED_MARGINALS})
 
     def _round_deadline_s(self, n_tasks: int) -> float:
         """How long a round of `n_tasks` one-sweep tasks may take before its workers count as
@@ -1364,10 +1368,17 @@ class Controller:
             moves0 = tuple(sess.move_from_json(m, dim) for m in detail.get("joint_moves", []))
             fit = next((e for e in events[:n_events] if e["kind"] == "fitted"), None)   # ("fitted": the move, once)
             if fit is not None and isinstance(fit.get("detail"), dict) and fit["detail"].get("move") is not None:
-                # (a session recorded before the conditional moves: 12 joint proposals and none)
+                # (a session recorded before the conditional moves: 12 joint proposals and none; before
+                # the marginal moves, none)
+                marginals = fit["detail"].get("marginals", [])
+                if not isinstance(marginals, list):
+                    raise ValueError("fitted: marginals must be a list of moves")
                 moves0 += fitted_moves(sess.move_from_json(fit["detail"]["move"], dim),
                                        _whole(fit["detail"].get("per_sweep", 12), "fitted: per_sweep", 1),
-                                       _whole(fit["detail"].get("conditionals", 0), "fitted: conditionals", 0))
+                                       _whole(fit["detail"].get("conditionals", 0), "fitted: conditionals", 0),
+                                       tuple(sess.move_from_json(m, dim) for m in marginals),
+                                       _whole(fit["detail"].get("marginals_per_sweep", 0), "fitted: marginals_per_sweep",
+                                              0))
             if moves_set == "paper" and (moves0 or warmup):
                 raise ValueError("init: the paper's moves with joint moves or a warm-up")
         record = sess.read_record(folder)

@@ -32,9 +32,9 @@ class RampScenario(Scenario):
     # BENCHMARKS.md, issue 12), and the collision's restitution a latent (issue 30); the paper's
     # is Gaussian, its restitution fixed
     paper_priors = {"observation": "gaussian", "infer_restitution": False}
-    # running until converged: the move fitted to the warm-up joins, with its conditional moves
-    # (BENCHMARKS.md, issue 30: the demo converges in 497-547 sweeps with the restitution latent,
-    # 141-279 without; the default moves had not after 1,200)
+    # running until converged: the move fitted to the warm-up joins, with its conditional and
+    # marginal moves (BENCHMARKS.md, issue 30: the demo converges in a median 279 sweeps over 5
+    # seeds, 156-803, with the restitution latent; the default moves had not after 1,200)
     converge_moves = "fitted"
 
     # -- scene and observations ---------------------------------------------------------------------
