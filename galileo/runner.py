@@ -613,10 +613,9 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
                 _run_block(executor, tasks, done, bar, piecewise=progress)
                 n_done = int(done[0][-1]["sweep"])
                 if n_done == fit_at:
-                    q = fitted_move(latents, bounds, [np.concatenate([r["positions"] for r in rs]) for rs in done],
-                                    warmup)
-                    moves = moves + fitted_moves(q, marginals=fitted_marginals(
-                        latents, bounds, [np.concatenate([r["positions"] for r in rs]) for rs in done], warmup, q))
+                    warm = [np.concatenate([r["positions"] for r in rs]) for rs in done]
+                    q = fitted_move(latents, bounds, warm, warmup)
+                    moves = moves + fitted_moves(q, marginals=fitted_marginals(latents, bounds, warm, warmup, q))
                     if n_done < cfg.sweeps:
                         tasks = _joined([next_task(tasks[c], done[c][-1], cfg.sweeps - n_done)
                                          for c in range(cfg.chains)], moves)
@@ -738,8 +737,12 @@ def fitted_move(latents: Sequence[Latent], bounds: np.ndarray, chains: Sequence[
     continuous latent (in log for those the adaptive walk takes in log), fitted to the second half
     of every chain's warm-up draws pooled; None if it cannot be fitted."""
     sites = [j for j, lat in enumerate(latents) if not lat.integer]
-    draws = np.concatenate([np.asarray(c, float)[warmup // 2:warmup] for c in chains])
-    return fit_independence(draws, sites, _log_sites(latents, bounds, sites), bounds)
+    return fit_independence(_warm_draws(chains, warmup), sites, _log_sites(latents, bounds, sites), bounds)
+
+
+def _warm_draws(chains: Sequence[np.ndarray], warmup: int) -> np.ndarray:
+    """The second half of every chain's warm-up draws, pooled: what the fitted moves are fitted to."""
+    return np.concatenate([np.asarray(c, float)[warmup // 2:warmup] for c in chains])
 
 
 def fitted_marginals(latents: Sequence[Latent], bounds: np.ndarray, chains: Sequence[np.ndarray], warmup: int,
@@ -756,7 +759,7 @@ def fitted_marginals(latents: Sequence[Latent], bounds: np.ndarray, chains: Sequ
         return ()
     scale = np.asarray(q.chol, float)
     sd = np.sqrt(np.diag(scale @ scale.T))
-    draws = np.concatenate([np.asarray(c, float)[warmup // 2:warmup] for c in chains])
+    draws = _warm_draws(chains, warmup)
     out = []
     for k, cond in enumerate(conditionals_of(q)):
         if math.sqrt(cond.var) >= MARGINAL_MIN_SD_RATIO * sd[k]:
