@@ -13,9 +13,10 @@ prior, `initial_positions(bounds, c + 1, seed)[c]`; the splash starts as its see
 
 Move sets (`RunConfig.moves`): "paper" is Galileo 3.2 as published; "default" adds warm-up
 adaptation of the widths and joint moves (`default_moves`: the scenario's own and an
-adaptive joint random walk); "fitted" adds, after the warm-up, an independence
-move fitted to every chain's warm-up draws, with its conditional moves and marginal moves
-(`fitted_move`, `fitted_marginals`, `fitted_moves`; `infer`, and the app's controller
+adaptive joint random walk); "fitted" adds, after the warm-up, moves fitted to every
+chain's warm-up draws: a kernel move (a kernel density estimate of them), and a t's
+conditional moves and marginal moves (`fitted_kernel`, `fitted_move`, `fitted_marginals`,
+`fitted_moves`; `infer`, and the app's controller
 once every chain is past the warm-up): from then on a chain depends on
 the others' warm-ups too (still only on the seed and the settings). A task carries its chain's adapted widths and moves, so a
 chain continued in another task (`next_task`: the batch runner's blocks when it runs until
@@ -63,8 +64,10 @@ from .progress import tqdm
 from .results import MIN_ESS, RHAT_TARGET, InferenceResult, convergence, kept_draws
 
 MOVE_SETS = ("default", "paper", "fitted")  # what `infer` and the app's controller run
-FITTED_PER_SWEEP = 12                       # "fitted": its proposals a sweep after the warm-up (the demo converged
-                                            # in 757, 337, 225 sweeps with 3, 6, 12: each accepted one is a fresh draw)
+FITTED_PER_SWEEP = 12                       # "fitted": its joint proposals a sweep after the warm-up (the demo converged
+                                            # in 757, 337, 225 sweeps with 3, 6, 12 from the t: each accepted one is a
+                                            # fresh draw; from the kernel, seeds 0 and 4: 230 with 6, 172 and 156 with
+                                            # 12; with 20, 156 on seed 0, no sooner in seconds)
 FITTED_CONDITIONALS = 1                     # "fitted": proposals a sweep of each latent from q's conditional (the demo
                                             # converged in a median 209 sweeps over 5 seeds, 141-279; without, 372, 279-1071)
 FITTED_MARGINALS = 2                        # "fitted": proposals a sweep of each latent the others barely determine
@@ -553,10 +556,11 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
     (`Scenario.moves`, e.g. the ramp's k1 from the tracked acceleration and its mass-ratio
     moves), each exact; the kept draws (after max(warm-up, half the chain)) come from one
     fixed kernel. "fitted" runs the warm-up alone first, then adds to every chain
-    FITTED_PER_SWEEP proposals a sweep of an independence move fitted to all chains' warm-up
-    draws (`fitted_move`), FITTED_CONDITIONALS of each latent from its conditional given the
-    others and FITTED_MARGINALS of each latent the others barely determine from its warm-up
-    draws' density (`fitted_marginals`, `fitted_moves`), frozen from then on.
+    FITTED_PER_SWEEP proposals a sweep from a kernel density estimate of all chains' warm-up
+    draws (`fitted_kernel`), FITTED_CONDITIONALS of each latent from its conditional given the
+    others under a t fitted to them (`fitted_move`) and FITTED_MARGINALS of each latent the
+    others barely determine from its warm-up draws' density (`fitted_marginals`,
+    `fitted_moves`), frozen from then on.
 
     With `config.until_rhat`, chains run `config.sweeps` sweeps and then on, in blocks of a
     tenth of what they have done (at least 10: `block_after`), until every latent's rank-normalised split R-hat is at
@@ -615,7 +619,8 @@ def infer(scene, tracks: Tracks, config: RunConfig | None = None, *, executor=No
                 if n_done == fit_at:
                     warm = [np.concatenate([r["positions"] for r in rs]) for rs in done]
                     q = fitted_move(latents, bounds, warm, warmup)
-                    moves = moves + fitted_moves(q, marginals=fitted_marginals(latents, bounds, warm, warmup, q))
+                    moves = moves + fitted_moves(q, marginals=fitted_marginals(latents, bounds, warm, warmup, q),
+                                                 kernel=fitted_kernel(latents, bounds, warm, warmup))
                     if n_done < cfg.sweeps:
                         tasks = _joined([next_task(tasks[c], done[c][-1], cfg.sweeps - n_done)
                                          for c in range(cfg.chains)], moves)
@@ -745,6 +750,18 @@ def _warm_draws(chains: Sequence[np.ndarray], warmup: int) -> np.ndarray:
     return np.concatenate([np.asarray(c, float)[warmup // 2:warmup] for c in chains])
 
 
+def fitted_kernel(latents: Sequence[Latent], bounds: np.ndarray, chains: Sequence[np.ndarray], warmup: int):
+    """The "fitted" move set's joint move (`galileo.mcmc.FittedKernel`): a kernel density
+    estimate over every continuous latent (in log where `fitted_move` takes it) of the second
+    half of every chain's warm-up draws, its kernels of the chains' own spread; None if it
+    cannot be fitted."""
+    from .mcmc import fit_kernel
+
+    sites = [j for j, lat in enumerate(latents) if not lat.integer]
+    return fit_kernel([np.asarray(c, float)[warmup // 2:warmup] for c in chains], sites,
+                      _log_sites(latents, bounds, sites), bounds)
+
+
 def fitted_marginals(latents: Sequence[Latent], bounds: np.ndarray, chains: Sequence[np.ndarray], warmup: int,
                      q) -> tuple:
     """The "fitted" move set's marginal moves (`galileo.mcmc.FittedMarginal`): one for each
@@ -768,13 +785,13 @@ def fitted_marginals(latents: Sequence[Latent], bounds: np.ndarray, chains: Sequ
 
 
 def fitted_moves(q, per_sweep: int | None = None, conditionals: int | None = None, marginals: tuple = (),
-                 marginals_per_sweep: int | None = None) -> tuple:
+                 marginals_per_sweep: int | None = None, kernel=None) -> tuple:
     """The moves the fitted q adds to every chain after the warm-up: `per_sweep`
-    (FITTED_PER_SWEEP) joint proposals from q, then `conditionals` (FITTED_CONDITIONALS) of each
-    latent from q's conditional given the others (`galileo.mcmc.FittedConditional`), then
-    `marginals_per_sweep` (FITTED_MARGINALS) of each of the `marginals` (`fitted_marginals`);
-    none without a q. (The app records the counts and the marginals with q: a session keeps
-    the kernel it ran.)"""
+    (FITTED_PER_SWEEP) joint proposals from the `kernel` (`fitted_kernel`; without one, from q),
+    then `conditionals` (FITTED_CONDITIONALS) of each latent from q's conditional given the
+    others (`galileo.mcmc.FittedConditional`), then `marginals_per_sweep` (FITTED_MARGINALS) of
+    each of the `marginals` (`fitted_marginals`); none without a q. (The app records the counts,
+    the kernel and the marginals with q: a session keeps the moves it ran.)"""
     from .mcmc import conditionals_of
 
     per_sweep = FITTED_PER_SWEEP if per_sweep is None else int(per_sweep)
@@ -782,7 +799,8 @@ def fitted_moves(q, per_sweep: int | None = None, conditionals: int | None = Non
     marginals_per_sweep = FITTED_MARGINALS if marginals_per_sweep is None else int(marginals_per_sweep)
     if q is None:
         return ()
-    return (q,) * per_sweep + conditionals_of(q) * conditionals + tuple(marginals) * marginals_per_sweep
+    joint = q if kernel is None else kernel
+    return (joint,) * per_sweep + conditionals_of(q) * conditionals + tuple(marginals) * marginals_per_sweep
 
 
 def _log_sites(latents: Sequence[Latent], bounds: np.ndarray, sites: Sequence[int]) -> list[int]:

@@ -154,10 +154,12 @@ def test_the_fitted_move_set_equals_the_batch_runner_and_comes_back_with_the_ses
     assert_batch_chains(ctl, res)
     fits = [e for e in ctl.events if e["kind"] == "fitted"]
     assert len(fits) == 1 and fits[0]["detail"]["sweep"] == 10 and fits[0]["detail"]["move"]["name"] == "fitted"
-    fitted_sites = res.moves["codes"]["fitted"]
+    # the joint proposals from the kernel density estimate of the warm-up draws, recorded with q
+    assert fits[0]["detail"]["kernel"]["type"] == "FittedKernel"
+    fitted_sites = res.moves["codes"]["fitted_kernel"]
     assert np.isin(ctl.proposals(0)["site"], fitted_sites).sum() == 4 * FITTED_PER_SWEEP   # sweeps 11-14
-    assert ctl.status()["moves"]["joint"].count("fitted") == 1
-    assert ctl.status()["moves"]["acceptance"]["fitted"] == res.diagnostics()["acceptance"]["fitted_move"]
+    assert ctl.status()["moves"]["joint"].count("fitted_kernel") == 1
+    assert ctl.status()["moves"]["acceptance"]["fitted_kernel"] == res.diagnostics()["acceptance"]["fitted_kernel_move"]
     # the marginal moves of the latents the others barely determine (k1, e_collision here) with q
     marginals = fits[0]["detail"]["marginals"]
     assert marginals and {m["type"] for m in marginals} == {"FittedMarginal"}
@@ -185,10 +187,11 @@ def test_the_fitted_move_set_equals_the_batch_runner_and_comes_back_with_the_ses
 
 def test_a_session_fitted_before_the_conditional_moves_reopens_with_the_kernel_it_ran(demo, make, tmp_path):
     """The "fitted" event records how many joint proposals, conditional and marginal moves joined
-    with q, and the marginals; a session recorded before the conditional and marginal moves (no
-    counts: 12 joint, none) gives a chain made after reopening those 12 and no conditional or
+    with q, the kernel the joint proposals come from and the marginals; a session recorded before
+    the kernel, conditional and marginal moves (no kernel: the joint proposals from q; no counts:
+    12 joint, none) gives a chain made after reopening those 12 from q and no conditional or
     marginal move, and a session of today all of them."""
-    from galileo.mcmc import FittedConditional, FittedIndependence, FittedMarginal
+    from galileo.mcmc import FittedConditional, FittedIndependence, FittedKernel, FittedMarginal
     from galileo.runner import FITTED_CONDITIONALS, FITTED_MARGINALS, FITTED_PER_SWEEP
     from ui.session import CHAINS_FILE, EVENTS_FILE
 
@@ -202,7 +205,7 @@ def test_a_session_fitted_before_the_conditional_moves_reopens_with_the_kernel_i
         back = Controller.load(folder, workers=1)
         try:
             moves = back._moves0
-            return (sum(isinstance(m, FittedIndependence) for m in moves),
+            return (sum(isinstance(m, FittedKernel) for m in moves), sum(isinstance(m, FittedIndependence) for m in moves),
                     sorted(m.site for m in moves if isinstance(m, FittedConditional)),
                     sorted(m.site for m in moves if isinstance(m, FittedMarginal)))
         finally:
@@ -211,7 +214,7 @@ def test_a_session_fitted_before_the_conditional_moves_reopens_with_the_kernel_i
     fit = next(e for e in ctl.events if e["kind"] == "fitted")["detail"]
     marginal_sites = sorted([m["site"] for m in fit["marginals"]] * FITTED_MARGINALS)
     assert marginal_sites and fit["marginals_per_sweep"] == FITTED_MARGINALS
-    assert kinds(tmp_path / "s") == (FITTED_PER_SWEEP, sorted(list(range(len(NAMES))) * FITTED_CONDITIONALS),
+    assert kinds(tmp_path / "s") == (FITTED_PER_SWEEP, 0, sorted(list(range(len(NAMES))) * FITTED_CONDITIONALS),
                                      marginal_sites)
     # the session as it was recorded before: no counts in the event, no conditional moves in the chains
     path = tmp_path / "s" / EVENTS_FILE
@@ -219,31 +222,39 @@ def test_a_session_fitted_before_the_conditional_moves_reopens_with_the_kernel_i
     for e in doc["events"]:
         if e["kind"] == "fitted":
             del e["detail"]["per_sweep"], e["detail"]["conditionals"]
-            del e["detail"]["marginals"], e["detail"]["marginals_per_sweep"]
+            del e["detail"]["marginals"], e["detail"]["marginals_per_sweep"], e["detail"]["kernel"]
     path.write_text(json.dumps(doc))
     path = tmp_path / "s" / CHAINS_FILE
     text = path.read_text()
     doc = json.loads(text)
+    # today's chains.json writes each distinct move once, in its move table, and the chains' moves
+    # as indices into it; before the table, every chain held its moves inline
+    assert [m["type"] for m in doc["move_table"]].count("FittedKernel") == 1
+    assert all(isinstance(i, int) for ch in doc["chains"] for i in ch["moves"])
+    for ch in doc["chains"]:
+        ch["moves"] = [doc["move_table"][i] for i in ch["moves"]]
+    del doc["move_table"]
     dropped = _drop_moves(doc, "FittedConditional")
     assert dropped == 2 * len(NAMES) * FITTED_CONDITIONALS, dropped      # two chains' conditional moves
     assert _drop_moves(doc, "FittedMarginal") == 2 * len(marginal_sites)
+    assert _drop_moves(doc, "FittedKernel", fit["move"]) == 2 * FITTED_PER_SWEEP   # (the joint proposals from q)
     path.write_text(json.dumps(doc))
-    assert kinds(tmp_path / "s") == (12, [], [])
+    assert kinds(tmp_path / "s") == (0, 12, [], [])
 
 
-def _drop_moves(node, kind: str) -> int:
-    """Remove the recorded joint moves of type `kind` wherever they are in a session file's JSON;
-    how many."""
+def _drop_moves(node, kind: str, instead: dict | None = None) -> int:
+    """Remove the recorded joint moves of type `kind` wherever they are in a session file's JSON
+    (or put `instead` in their place); how many."""
     n = 0
     if isinstance(node, dict):
         for v in node.values():
-            n += _drop_moves(v, kind)
+            n += _drop_moves(v, kind, instead)
     elif isinstance(node, list):
-        keep = [x for x in node if not (isinstance(x, dict) and x.get("type") == kind)]
-        n += len(node) - len(keep)
-        node[:] = keep
+        keep = [x if not (isinstance(x, dict) and x.get("type") == kind) else instead for x in node]
+        n += sum(isinstance(x, dict) and x.get("type") == kind for x in node)
+        node[:] = [x for x in keep if x is not None]
         for x in node:
-            n += _drop_moves(x, kind)
+            n += _drop_moves(x, kind, instead)
     return n
 
 
@@ -628,7 +639,7 @@ def saved_session(make, tmp_path):
 
 @pytest.mark.parametrize("name, damage", [
     ("record.npz", "truncate"), ("record.npz", "garbage"), ("record.npz", "site"), ("chains.json", "move"),
-    ("chains.json", "widths"), ("events.json", "moves"), ("chains.json", "invalid"),
+    ("chains.json", "move_index"), ("chains.json", "widths"), ("events.json", "moves"), ("chains.json", "invalid"),
     ("events.json", "invalid"), ("settings.json", "invalid"), ("scene.json", "invalid"),
     ("tracks.json", "invalid"), ("chains.json", "wrong"), ("settings.json", "wrong"),
     ("scene.json", "wrong"), ("tracks.json", "wrong"), ("events.json", "missing"), ("record.npz", "missing"),
@@ -646,10 +657,12 @@ def test_damaged_session_is_a_one_line_error_naming_the_file(saved_session, tmp_
             rec = {k: z[k] for k in z.files}
         rec["c0_site"][1] = -9
         path.write_bytes(sess.npz_bytes(rec))
-    elif damage in ("move", "widths", "moves"):
+    elif damage in ("move", "move_index", "widths", "moves"):
         d = json.loads(path.read_text())
         if damage == "move":
-            d["chains"][0]["moves"][-1]["chol"] = [[1.0]]
+            d["move_table"][d["chains"][0]["moves"][-1]]["chol"] = [[1.0]]
+        elif damage == "move_index":
+            d["chains"][0]["moves"][-1] = len(d["move_table"])
         elif damage == "widths":
             d["chains"][0]["proposal"]["narrow"] = [0.1, -1.0, 0.1, 0.1]
         else:

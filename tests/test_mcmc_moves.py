@@ -436,3 +436,130 @@ def test_the_fitted_set_adds_marginals_only_for_latents_the_others_barely_determ
     assert m.site == 2 and not m.log and MARGINAL_MIN_SD_RATIO < 1
     assert np.mean(m.centres) == pytest.approx(0.5, abs=0.01)
     assert fitted_marginals(latents, bounds, [draws], 1000, None) == ()
+
+
+# -- the fitted kernel move: a kernel density estimate of every chain's warm-up draws (issue 30) -----
+
+# two separate modes in (log m, k): 70% around (log 0.3, 0.4), 30% around (log 0.8, 0.7), each
+# narrow and correlated; a t over both covers the empty space between them (the splash's chains)
+TWO_MODES = ((0.7, stats.multivariate_normal([math.log(0.3), 0.4], [[0.0016, 0.0006], [0.0006, 0.0004]])),
+             (0.3, stats.multivariate_normal([math.log(0.8), 0.7], [[0.0016, -0.0006], [-0.0006, 0.0004]])))
+
+
+def _two_modes_logdensity(x, threshold=None):
+    if x[0] <= 0:
+        return -math.inf
+    y = [math.log(x[0]), x[1]]
+    return float(np.logaddexp.reduce([math.log(w) + d.logpdf(y) for w, d in TWO_MODES]) - math.log(x[0]))
+
+
+def _two_modes_cdf_k(v):
+    return sum(w * stats.norm(d.mean[1], math.sqrt(d.cov[1, 1])).cdf(v) for w, d in TWO_MODES)
+
+
+def _warm_chains(rng, n_chains=(8, 8), n=30, shift=0.5):
+    """'Warm-up' chains: half in each mode (against the target's 70/30), each of n draws that
+    spread as the mode does, around a point `shift` of the mode's SDs off its centre."""
+    out = []
+    for (w, d), k in zip(TWO_MODES, n_chains):
+        sd = np.sqrt(np.diag(d.cov))
+        for _ in range(k):
+            y = d.mean + shift * sd + rng.multivariate_normal([0, 0], d.cov, n)
+            out.append(np.c_[np.exp(y[:, 0]), y[:, 1]])
+    return out
+
+
+def test_fitted_kernel_samples_two_modes_and_fails_without_its_hastings_factor():
+    """Fitted to warm-up chains split 50/50 between two separate modes (the target's weights are
+    70/30), each chain off its mode's centre: the chain samples the target, both modes' weights
+    included; without the factor it keeps q's 50/50."""
+    from galileo.mcmc import fit_kernel
+
+    bounds = [(1e-3, 5.0), (-1.0, 2.0)]
+    q = fit_kernel(_warm_chains(np.random.default_rng(8)), (0, 1), (0,), np.array(bounds))
+    good = _chain(_two_modes_logdensity, [0.3, 0.4], bounds, [q])
+    assert stats.kstest(good[:, 1], _two_modes_cdf_k).pvalue > 1e-3
+    assert abs((good[:, 1] > 0.55).mean() - 0.3) < 0.03
+    bad = _chain(_two_modes_logdensity, [0.3, 0.4], bounds, [q], hastings=False)
+    assert stats.kstest(bad[:, 1], _two_modes_cdf_k).pvalue < 1e-6
+
+
+def test_a_fitted_kernel_moves_between_separate_modes_where_the_t_cannot():
+    """The reason it exists: fitted to the same warm-up chains, the t (`FittedIndependence`)
+    spans both modes and proposes into the empty space between them, so it is almost never
+    accepted; the kernel, of the chains' own spread, is accepted often and crosses between
+    the modes hundreds of times in 2,000 sweeps (over seeds 9, 12, 13: 368-432 times, 43-48% accepted;
+    the t 23-38 times, 4-5% accepted)."""
+    from galileo.mcmc import fit_independence, fit_kernel
+
+    chains = _warm_chains(np.random.default_rng(9))
+    bounds = np.array([(1e-3, 5.0), (-1.0, 2.0)])
+    logd = _two_modes_logdensity
+
+    def run(move, n=2000):
+        rng, state = chain_rng(0, 0), MHState(np.array([0.3, 0.4]), logd([0.3, 0.4]), 0)
+        inside, accepted = [], 0
+        for _ in range(n):
+            state, info = step_move(rng, state, move, logd, bounds, True, -2)
+            inside.append(state.position[1] > 0.55)
+            accepted += info.accepted
+        return int(np.abs(np.diff(np.asarray(inside, int))).sum()), accepted / n
+
+    t_cross, t_acc = run(fit_independence(np.concatenate(chains), (0, 1), (0,), bounds))
+    k_cross, k_acc = run(fit_kernel(chains, (0, 1), (0,), bounds))
+    assert k_acc > 0.3 and k_cross > 250, (k_acc, k_cross)
+    assert t_acc < 0.1 and k_cross > 3 * t_cross, (t_acc, t_cross)
+
+
+def test_fitted_kernel_density_is_its_mixture_of_ts_in_the_latents_own_space():
+    """log q against scipy's multivariate t, averaged over the centres, with the log map's
+    Jacobian and the defensive uniform: at points inside, outside and in each mode."""
+    from galileo.mcmc import fit_kernel
+
+    bounds = np.array([(1e-3, 5.0), (-1.0, 2.0)])
+    for local in (True, False):
+        q = fit_kernel(_warm_chains(np.random.default_rng(10)), (0, 1), (0,), bounds, local=local)
+        assert len(q.chols) == (16 if local else 1)
+        scales = [np.asarray(c) @ np.asarray(c).T for c in q.chols]
+        area = (5.0 - 1e-3) * 3.0
+        for x in ([0.3, 0.4], [0.8, 0.7], [0.5, 0.55], [2.0, -0.5]):
+            y = [math.log(x[0]), x[1]]
+            t = np.mean([stats.multivariate_t(c, scales[g], df=q.df).pdf(y) for c, g in zip(q.centres, q.groups)]) / x[0]
+            assert q.logq(x) == pytest.approx(math.log(q.weight * t + (1 - q.weight) / area), rel=1e-9)
+        assert q.logq([6.0, 0.5]) == -math.inf and q.logq([0.3, 2.5]) == -math.inf
+
+
+def test_fitted_kernel_takes_the_chains_own_spread_and_refuses_bad_draws():
+    """Its scale is Scott's factor times the covariance within a chain, pooled, or with
+    `local=True` each centre's its own chain's (chains along a curved ridge: each of its own
+    orientation); never the spread between chains (here 100 times larger)."""
+    from galileo.mcmc import KERNEL_CENTRES, fit_kernel
+
+    rng = np.random.default_rng(11)
+    within = [np.array([[0.01, s * 0.004], [s * 0.004, 0.0025]]) for s in (1, -1)]   # two orientations
+    chains = [rng.multivariate_normal(rng.normal(0.0, 1.0, 2), within[c % 2], 400) + [0.0, 5.0] for c in range(16)]
+    bounds = np.array([(-10.0, 10.0), (0.0, 10.0)])
+    h = KERNEL_CENTRES ** (-1 / 6)
+    q = fit_kernel(chains, (0, 1), (), bounds, local=True)
+    assert len(q.centres) == KERNEL_CENTRES and q.sites == (0, 1) and len(q.chols) == 16
+    for g, chol in enumerate(q.chols):
+        assert np.allclose(np.asarray(chol) @ np.asarray(chol).T / h ** 2, within[g % 2], rtol=0.2, atol=5e-4)
+    # every centre is a draw of the chain whose scale it takes
+    for c, g in zip(q.centres, q.groups):
+        assert np.any(np.all(chains[g] == c, axis=1))
+    pooled = fit_kernel(chains, (0, 1), (), bounds)
+    assert len(pooled.chols) == 1 and set(pooled.groups) == {0}
+    scale = np.asarray(pooled.chols[0]) @ np.asarray(pooled.chols[0]).T
+    assert np.allclose(scale / h ** 2, np.diag(np.diag(within[0])), rtol=0.15, atol=5e-4)
+    x, _ = q.propose(chain_rng(0, 0), [0.5, 5.0, 0.7])
+    assert x[2] == 0.7 and x[0] != 0.5                                  # a latent outside its sites unchanged
+    assert fit_kernel(chains[:1], (0, 1), (), bounds) is None            # one chain: no spread within chains
+    assert fit_kernel([*chains[:3], np.full((5, 2), np.nan)], (0, 1), (), bounds) is None
+    assert fit_kernel(chains, (0, 1), (1,), np.array([(-10.0, 10.0), (0.01, 10.0)])) is not None
+    assert fit_kernel([c - [0.0, 5.0] for c in chains], (0, 1), (1,), bounds) is None   # a log site at or below 0
+    with pytest.raises(ValueError):
+        q._replace(chols=(((1.0,),),)).check(3)
+    with pytest.raises(ValueError):
+        q._replace(groups=q.groups[:-1]).check(3)
+    with pytest.raises(ValueError):
+        q.check(1)                                                      # its sites outside the latents

@@ -98,7 +98,8 @@ from galileo.results import MIN_ESS, RHAT_TARGET, burn_in, convergence, derived_
 from galileo.runner import (FITTED_CONDITIONALS, FITTED_MARGINALS, FITTED_MIN_WARMUP, FITTED_PER_SWEEP,
                             MIN_BLOCK_SWEEPS, MOVE_SETS, PROPOSAL_FIELDS, ChainTask, LocalPool,
                             Problem, RunConfig, Settings, WorkerDied, WorkerHung, block_after, default_moves,
-                            fitted_marginals, fitted_move, fitted_moves, run_task, scene_for_moves)
+                            fitted_kernel, fitted_marginals, fitted_move, fitted_moves, run_task,
+                            scene_for_moves)
 
 from . import session as sess
 
@@ -175,14 +176,31 @@ class _Chain:
             if b is None or ll[i] > b[1]:
                 self.best[float(noise[i])] = (i, float(ll[i]))
 
-    def to_json(self) -> dict:
+    def to_json(self, table: dict | None = None) -> dict:
+        """The chain as chains.json records it; with a `table` (move -> index, shared by every
+        chain of a save), its joint moves as indices into that table (the fitted moves, the
+        same in every chain and each many times a sweep, are then written once)."""
+        moves = ([sess.move_to_json(m) for m in self.moves] if table is None
+                 else [table.setdefault(m, len(table)) for m in self.moves])
         return {"id": self.id, "start": self.start.tolist(), "position": self.position.tolist(),
                 # (-inf, a position outside the model's support, is stored as "evaluate again")
                 "logdensity": self.logdensity if self.logdensity is not None and math.isfinite(self.logdensity)
                 else None, "sweep": self.sweep, "paused": self.paused, "held": self.held,
                 "removed": self.removed, "rng": self.rng_state, "n_samples": len(self.samples),
                 "n_proposals": len(self.proposals["site"]),
-                "proposal": sess.proposal_to_json(self.proposal), "moves": [sess.move_to_json(m) for m in self.moves]}
+                "proposal": sess.proposal_to_json(self.proposal), "moves": moves}
+
+
+def _recorded_move(m, table: list, tabled: dict, dim: int):
+    """A chain's recorded joint move: an index into chains.json's move table (read once, then
+    shared), or the move itself (a session recorded before the table); ValueError if damaged."""
+    if isinstance(m, dict):
+        return sess.move_from_json(m, dim)
+    if isinstance(m, bool) or not isinstance(m, int) or not 0 <= m < len(table):
+        raise ValueError(f"joint move {m!r:.40} is neither a move nor an index into the move table of {len(table)}")
+    if m not in tabled:
+        tabled[m] = sess.move_from_json(table[m], dim)
+    return tabled[m]
 
 
 def _inside(x: np.ndarray, bounds: np.ndarray) -> np.ndarray:
@@ -510,10 +528,11 @@ class Controller:
     def _maybe_fit(self) -> None:
         """The "fitted" move set (under the lock, after a round): once every running chain is past
         the warm-up (two at least; a chain the user paused in its warm-up is not waited for), the
-        independence move fitted to those chains' warm-ups' second halves
-        (`galileo.runner.fitted_move`, as `galileo infer --moves fitted`) joins every chain's
-        moves, FITTED_PER_SWEEP proposals a sweep, and every chain made later; once (recorded
-        as a "fitted" event, its q in full; a reopened session has it in its chains' moves)."""
+        moves fitted to those chains' warm-ups' second halves (`galileo.runner.fitted_moves`:
+        the kernel move, FITTED_PER_SWEEP proposals a sweep, the t's conditionals and the
+        marginals, as `galileo infer --moves fitted`) join every chain's moves, and every
+        chain made later; once (recorded as a "fitted" event, the t, the kernel and the
+        marginals in full; a reopened session has them in its chains' moves)."""
         if self.moves_set != "fitted" or self._fitted:
             return
         active = [ch for _, ch in sorted(self._chains.items()) if not ch.removed]
@@ -524,8 +543,9 @@ class Controller:
         warm = [ch.samples.get() for ch in ready]
         q = fitted_move(self.latents, self._bounds_array(), warm, self._warmup)
         marginals = fitted_marginals(self.latents, self._bounds_array(), warm, self._warmup, q)
+        kernel = fitted_kernel(self.latents, self._bounds_array(), warm, self._warmup) if q is not None else None
         if q is not None:
-            more = fitted_moves(q, marginals=marginals)
+            more = fitted_moves(q, marginals=marginals, kernel=kernel)
             for ch in active:
                 ch.moves = tuple(ch.moves) + more
             self._moves0 = tuple(self._moves0) + more
@@ -533,7 +553,8 @@ class Controller:
                                "move": None if q is None else sess.move_to_json(q),
                                "per_sweep": FITTED_PER_SWEEP, "conditionals": FITTED_CONDITIONALS,
                                "marginals": [sess.move_to_json(m) for m in marginals],
-                               "marginals_per_sweep": FITTED_MARGINALS})
+                               "marginals_per_sweep": FITTED_MARGINALS,
+                               "kernel": None if kernel is None else sess.move_to_json(kernel)})
 
     def _round_deadline_s(self, n_tasks: int) -> float:
         """How long a round of `n_tasks` one-sweep tasks may take before its workers count as
@@ -1238,12 +1259,14 @@ class Controller:
                         record[f"c{c}_{k}"] = b.get()
                 events = copy.deepcopy(self._events)
                 settings = self._settings.to_json()
+                table: dict = {}      # every chain's joint moves, each distinct one once (`_Chain.to_json`)
                 chains = {"version": sess.SESSION_VERSION, "names": list(self.names), "seed": self.seed,
                           "rounds": self._rounds, "next_id": self._next_id, "physics_steps": self._steps,
                           "n_events": len(self._events), "settings": settings,
                           "moves": self.moves_set, "warmup": self._warmup, "adapt_until": self._adapt_until,
                           "target_sweeps": self._target, "until": copy.deepcopy(self._until),
-                          "chains": [copy.deepcopy(ch.to_json()) for _, ch in sorted(self._chains.items())]}
+                          "chains": [copy.deepcopy(ch.to_json(table)) for _, ch in sorted(self._chains.items())]}
+                chains["move_table"] = [sess.move_to_json(m) for m in table]
                 self._dirty = False
             state = {"settings": settings, "events": events, "chains": chains, "record": record}
             try:
@@ -1348,6 +1371,9 @@ class Controller:
             chain_docs = list(doc["chains"])
             if not chain_docs:
                 raise ValueError("no chains listed")
+            table = doc.get("move_table", [])    # (recorded before the table: every move inline)
+            if not isinstance(table, list):
+                raise ValueError("move_table must be a list of moves")
             seed, rounds = _whole(doc["seed"], "seed", 0), _whole(doc["rounds"], "rounds", 0)
             next_id, steps = int(doc["next_id"]), int(doc["physics_steps"])
             adapt_until = _whole(doc.get("adapt_until", 0), "adapt_until", 0)
@@ -1369,7 +1395,7 @@ class Controller:
             fit = next((e for e in events[:n_events] if e["kind"] == "fitted"), None)   # ("fitted": the move, once)
             if fit is not None and isinstance(fit.get("detail"), dict) and fit["detail"].get("move") is not None:
                 # (a session recorded before the conditional moves: 12 joint proposals and none; before
-                # the marginal moves, none)
+                # the marginal moves, none; before the kernel move, its joint proposals from q)
                 marginals = fit["detail"].get("marginals", [])
                 if not isinstance(marginals, list):
                     raise ValueError("fitted: marginals must be a list of moves")
@@ -1378,7 +1404,9 @@ class Controller:
                                        _whole(fit["detail"].get("conditionals", 0), "fitted: conditionals", 0),
                                        tuple(sess.move_from_json(m, dim) for m in marginals),
                                        _whole(fit["detail"].get("marginals_per_sweep", 0), "fitted: marginals_per_sweep",
-                                              0))
+                                              0),
+                                       None if fit["detail"].get("kernel") is None
+                                       else sess.move_from_json(fit["detail"]["kernel"], dim))
             if moves_set == "paper" and (moves0 or warmup):
                 raise ValueError("init: the paper's moves with joint moves or a warm-up")
         record = sess.read_record(folder)
@@ -1399,6 +1427,7 @@ class Controller:
         if isinstance(detail.get("init"), dict):
             self.init_info = _checked_init(detail["init"], dim)
         valid_sites = set(range(dim)) | {move_code(k) for k in range(len(moves0))}
+        tabled: dict = {}     # the move table's entries read so far, by index
         for d in chain_docs:
             with sess.reading(folder / sess.CHAINS_FILE):
                 c = int(d["id"])
@@ -1412,7 +1441,8 @@ class Controller:
                 if proposal.integer_sites != settings.integer_sites:
                     raise ValueError(f"chain {c}: integer sites {list(proposal.integer_sites)} differ from the "
                                      f"latents' {list(settings.integer_sites)}")
-                chain_moves = (tuple(sess.move_from_json(m, dim) for m in d["moves"]) if "moves" in d else moves0)
+                chain_moves = (tuple(_recorded_move(m, table, tabled, dim) for m in d["moves"]) if "moves" in d
+                               else moves0)
                 if [type(m) for m in chain_moves] != [type(m) for m in moves0]:
                     raise ValueError(f"chain {c}: its joint moves differ from the session's")
                 ch = _Chain(c, _vector(d["start"], dim), bit_gen.state, dim, proposal, chain_moves)
