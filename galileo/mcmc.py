@@ -556,17 +556,14 @@ class FittedKernel(NamedTuple):
             y = v.copy()
             y[logs] = np.log(v[logs])
             d = len(self.sites)
-            centres, groups = np.asarray(self.centres, float), np.asarray(self.groups)
-            const = math.lgamma((self.df + d) / 2) - math.lgamma(self.df / 2) - 0.5 * d * math.log(self.df * math.pi)
             terms = []
-            for g, chol in enumerate(np.asarray(self.chols, float)):
-                mine = groups == g
-                if not mine.any():
-                    continue
-                z = np.linalg.solve(chol, (y - centres[mine]).T)
-                terms.append(const - float(np.log(np.diag(chol)).sum())
-                             - 0.5 * (self.df + d) * np.log1p(np.sum(z * z, axis=0) / self.df))
-            log_k = float(np.logaddexp.reduce(np.concatenate(terms))) - math.log(len(centres))
+            for inv, white, log_det in _kernel_arrays(self):   # z = L^-1 (y - c) = L^-1 y - L^-1 c
+                z = inv @ y - white
+                terms.append(-log_det - 0.5 * (self.df + d) * np.log1p(np.einsum("ij,ij->i", z, z) / self.df))
+            t = np.concatenate(terms)
+            top = float(t.max())
+            log_k = (top + math.log(float(np.exp(t - top).sum())) - math.log(len(self.centres))
+                     + math.lgamma((self.df + d) / 2) - math.lgamma(self.df / 2) - 0.5 * d * math.log(self.df * math.pi))
             parts.append(math.log(self.weight) + log_k - float(np.log(v[logs]).sum()))
         return float(np.logaddexp.reduce(parts)) if parts else -math.inf
 
@@ -575,7 +572,7 @@ class FittedKernel(NamedTuple):
         old = x[list(self.sites)].copy()
         if rng.uniform() < self.weight:
             d = len(self.sites)
-            i = rng.integers(len(self.centres))
+            i = int(rng.integers(len(self.centres)))
             chol = np.asarray(self.chols[self.groups[i]], float)
             y = np.asarray(self.centres[i], float) + (chol @ rng.normal(size=d)) / math.sqrt(
                 rng.chisquare(self.df) / self.df)
@@ -588,6 +585,29 @@ class FittedKernel(NamedTuple):
         if not lq_new > -math.inf:   # (a kernel's draw outside the box: out of the prior, refused by the kernel)
             return x, -math.inf
         return x, self.logq(old) - lq_new
+
+
+_KERNEL_ARRAYS: dict = {}   # id(FittedKernel) -> (the kernel, its arrays): logq is called twice a proposal
+
+
+def _kernel_arrays(q: FittedKernel) -> list:
+    """Per scale factor L of `q`: (L^-1, its centres whitened (L^-1 c as rows), log det L),
+    computed once per kernel object (its tuples made arrays a thousand times a sweep cost more
+    than the proposal's simulation saves)."""
+    hit = _KERNEL_ARRAYS.get(id(q))
+    if hit is not None and hit[0] is q:
+        return hit[1]
+    if len(_KERNEL_ARRAYS) >= 64:   # (a worker sees a new copy of the move in every task)
+        _KERNEL_ARRAYS.clear()
+    centres, groups = np.asarray(q.centres, float), np.asarray(q.groups)
+    out = []
+    for g, chol in enumerate(np.asarray(q.chols, float)):
+        mine = groups == g
+        if mine.any():
+            inv = np.linalg.inv(chol)
+            out.append((inv, centres[mine] @ inv.T, float(np.log(np.diag(chol)).sum())))
+    _KERNEL_ARRAYS[id(q)] = (q, out)
+    return out
 
 
 def fit_kernel(chains: Sequence[np.ndarray], sites: Sequence[int], log_sites: Sequence[int], bounds: np.ndarray,
