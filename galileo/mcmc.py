@@ -350,21 +350,7 @@ class FittedIndependence(NamedTuple):
         return float(np.logaddexp.reduce(parts))
 
     def propose(self, rng: np.random.Generator, position) -> tuple[np.ndarray, float]:
-        x = np.asarray(position, float).copy()
-        old = x[list(self.sites)].copy()
-        if rng.uniform() < self.weight:
-            d = len(self.sites)
-            y = np.asarray(self.loc, float) + (np.asarray(self.chol, float) @ rng.normal(size=d)) / math.sqrt(
-                rng.chisquare(self.df) / self.df)
-            new = np.array([math.exp(y[k]) if i in self.log_sites else y[k] for k, i in enumerate(self.sites)])
-        else:
-            box = np.asarray(self.bounds, float)
-            new = rng.uniform(box[:, 0], box[:, 1])
-        x[list(self.sites)] = new
-        lq_new = self.logq(new)
-        if not lq_new > -math.inf:   # (a t draw outside the box: out of the prior, refused by the kernel)
-            return x, -math.inf
-        return x, self.logq(old) - lq_new
+        return _propose_t_or_box(self, rng, position, lambda: _t_draw(rng, self.loc, self.chol, self.df))
 
 
 class FittedConditional(NamedTuple):
@@ -568,23 +554,56 @@ class FittedKernel(NamedTuple):
         return float(np.logaddexp.reduce(parts)) if parts else -math.inf
 
     def propose(self, rng: np.random.Generator, position) -> tuple[np.ndarray, float]:
-        x = np.asarray(position, float).copy()
-        old = x[list(self.sites)].copy()
-        if rng.uniform() < self.weight:
-            d = len(self.sites)
+        def draw():
             i = int(rng.integers(len(self.centres)))
-            chol = np.asarray(self.chols[self.groups[i]], float)
-            y = np.asarray(self.centres[i], float) + (chol @ rng.normal(size=d)) / math.sqrt(
-                rng.chisquare(self.df) / self.df)
-            new = np.array([math.exp(y[k]) if s in self.log_sites else y[k] for k, s in enumerate(self.sites)])
-        else:
-            box = np.asarray(self.bounds, float)
-            new = rng.uniform(box[:, 0], box[:, 1])
-        x[list(self.sites)] = new
-        lq_new = self.logq(new)
-        if not lq_new > -math.inf:   # (a kernel's draw outside the box: out of the prior, refused by the kernel)
-            return x, -math.inf
-        return x, self.logq(old) - lq_new
+            return _t_draw(rng, self.centres[i], self.chols[self.groups[i]], self.df)
+
+        return _propose_t_or_box(self, rng, position, draw)
+
+
+def _t_draw(rng: np.random.Generator, centre, chol, df: float) -> np.ndarray:
+    """A multivariate Student-t draw: `centre` + `chol` z / sqrt(chi2_df / df)."""
+    chol = np.asarray(chol, float)
+    return np.asarray(centre, float) + (chol @ rng.normal(size=len(chol))) / math.sqrt(rng.chisquare(df) / df)
+
+
+def _propose_t_or_box(move, rng: np.random.Generator, position, draw) -> tuple[np.ndarray, float]:
+    """The fitted independence moves' proposal of their `sites`: with probability `weight` the
+    point `draw()` of q's transformed space (exp on the log sites), else uniform on the box; log
+    Hastings = log q(old) - log q(new) (-inf for a draw outside the box: out of the prior)."""
+    x = np.asarray(position, float).copy()
+    old = x[list(move.sites)].copy()
+    if rng.uniform() < move.weight:
+        y = draw()
+        new = np.array([math.exp(y[k]) if i in move.log_sites else y[k] for k, i in enumerate(move.sites)])
+    else:
+        box = np.asarray(move.bounds, float)
+        new = rng.uniform(box[:, 0], box[:, 1])
+    x[list(move.sites)] = new
+    lq_new = move.logq(new)
+    if not lq_new > -math.inf:
+        return x, -math.inf
+    return x, move.logq(old) - lq_new
+
+
+def _in_q_space(draws: np.ndarray, sites: Sequence[int], log_sites: Sequence[int]) -> np.ndarray | None:
+    """The `sites` columns of `draws` (N, D) in a fitted move's space: the log of the
+    `log_sites`; None if one of those is at or below 0."""
+    y = np.asarray(draws, float)[:, list(sites)].copy()
+    for k, i in enumerate(sites):
+        if i in log_sites:
+            if np.any(y[:, k] <= 0):
+                return None
+            y[:, k] = np.log(y[:, k])
+    return y
+
+
+def _width_floor(bounds: np.ndarray, sites: Sequence[int], log_sites: Sequence[int]) -> np.ndarray:
+    """A fitted move's covariance floor: a hundred-thousandth of each site's prior range (in
+    log for the log sites), squared, on the diagonal."""
+    span = np.array([math.log(bounds[i, 1] / bounds[i, 0]) if i in log_sites and bounds[i, 0] > 0
+                     else bounds[i, 1] - bounds[i, 0] for i in sites])
+    return np.diag((1e-5 * span) ** 2)
 
 
 _KERNEL_ARRAYS: dict = {}   # id(FittedKernel) -> (the kernel, its arrays): logq is called twice a proposal
@@ -632,20 +651,13 @@ def fit_kernel(chains: Sequence[np.ndarray], sites: Sequence[int], log_sites: Se
             continue
         if local and len(y) <= d:   # (too few for a chain's own covariance)
             return None
-        y = y[:, list(sites)].copy()
-        for k, i in enumerate(sites):
-            if i in log_sites:
-                if np.any(y[:, k] <= 0):
-                    return None
-                y[:, k] = np.log(y[:, k])
-        if not np.all(np.isfinite(y)):
+        y = _in_q_space(y, sites, log_sites)
+        if y is None or not np.all(np.isfinite(y)):
             return None
         ys.append(y)
     if len(ys) < 2 or not d:
         return None
-    span = np.array([math.log(bounds[i, 1] / bounds[i, 0]) if i in log_sites and bounds[i, 0] > 0
-                     else bounds[i, 1] - bounds[i, 0] for i in sites])
-    floor = np.diag((1e-5 * span) ** 2)
+    floor = _width_floor(bounds, sites, log_sites)
     covs = [np.atleast_2d(np.cov(y.T)) for y in ys]
     if not local:
         covs = [sum(c * (len(y) - 1) for c, y in zip(covs, ys)) / sum(len(y) - 1 for y in ys)]
@@ -732,15 +744,10 @@ def fit_independence(draws: np.ndarray, sites: Sequence[int], log_sites: Sequenc
     bounds = np.asarray(bounds, float)
     if len(sites) == 0 or len(draws) < 2 * len(sites):
         return None
-    y = draws[:, list(sites)].copy()
-    for k, i in enumerate(sites):
-        if i in log_sites:
-            if np.any(y[:, k] <= 0):
-                return None
-            y[:, k] = np.log(y[:, k])
-    span = np.array([math.log(bounds[i, 1] / bounds[i, 0]) if i in log_sites and bounds[i, 0] > 0
-                     else bounds[i, 1] - bounds[i, 0] for i in sites])
-    floor = np.diag((1e-5 * span) ** 2)
+    y = _in_q_space(draws, sites, log_sites)
+    if y is None:
+        return None
+    floor = _width_floor(bounds, sites, log_sites)
     loc, cov = y.mean(axis=0), np.atleast_2d(np.cov(y.T)) + floor
     for _ in range(FITTED_TRIM_ROUNDS):   # without the draws of chains that the warm-up left far from the rest
         try:

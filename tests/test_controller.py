@@ -814,3 +814,29 @@ def test_start_stop_in_the_background(demo, make, tmp_path):
         assert back.events == ctl.events and back.map() == ctl.map()
     finally:
         back.close()
+
+
+def test_a_saves_move_table_keeps_moves_apart_by_type_and_value():
+    """chains.json's move table (`_table_index`): the same move in two chains is written once;
+    two moves of different types with equal fields (equal as tuples) are two entries; a move
+    holding a list (unhashable) is keyed by its JSON."""
+    from typing import NamedTuple
+
+    from galileo.mcmc import LogScale
+    from ui.controller import _table_index
+
+    class Twin(NamedTuple):      # LogScale's fields, another type
+        sites: tuple
+        signs: tuple
+        width: float
+        every: int = 1
+        name: str = "log_scale"
+
+    table: dict = {}
+    a, b = LogScale((0, 2), (1.0, 1.0), 0.1), LogScale((0, 2), (1.0, 1.0), 0.1)
+    assert _table_index(table, a) == _table_index(table, b) == 0
+    twin = Twin(*a)
+    assert twin == a and _table_index(table, twin) == 1
+    listed = LogScale([0, 2], [1.0, -1.0], 0.3)
+    assert _table_index(table, listed) == 2 == _table_index(table, LogScale([0, 2], [1.0, -1.0], 0.3))
+    assert [type(m) for _, m in table.values()] == [LogScale, Twin, LogScale]

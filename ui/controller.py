@@ -76,6 +76,7 @@ that they can be watched and steered:
 from __future__ import annotations
 
 import copy
+import json
 import logging
 import math
 import os
@@ -181,7 +182,7 @@ class _Chain:
         chain of a save), its joint moves as indices into that table (the fitted moves, the
         same in every chain and each many times a sweep, are then written once)."""
         moves = ([sess.move_to_json(m) for m in self.moves] if table is None
-                 else [table.setdefault(m, len(table)) for m in self.moves])
+                 else [_table_index(table, m) for m in self.moves])
         return {"id": self.id, "start": self.start.tolist(), "position": self.position.tolist(),
                 # (-inf, a position outside the model's support, is stored as "evaluate again")
                 "logdensity": self.logdensity if self.logdensity is not None and math.isfinite(self.logdensity)
@@ -189,6 +190,20 @@ class _Chain:
                 "removed": self.removed, "rng": self.rng_state, "n_samples": len(self.samples),
                 "n_proposals": len(self.proposals["site"]),
                 "proposal": sess.proposal_to_json(self.proposal), "moves": moves}
+
+
+def _table_index(table: dict, move) -> int:
+    """The index of `move` in a save's move table (key -> (index, move)), added if new. Moves
+    are keyed by type and value (two NamedTuples of different types compare equal as tuples);
+    one that cannot be hashed (a field holding a list) by its JSON."""
+    key = (type(move), move)
+    try:
+        hash(key)
+    except TypeError:
+        key = json.dumps(sess.move_to_json(move), sort_keys=True)
+    if key not in table:
+        table[key] = (len(table), move)
+    return table[key][0]
 
 
 def _recorded_move(m, table: list, tabled: dict, dim: int):
@@ -1259,14 +1274,14 @@ class Controller:
                         record[f"c{c}_{k}"] = b.get()
                 events = copy.deepcopy(self._events)
                 settings = self._settings.to_json()
-                table: dict = {}      # every chain's joint moves, each distinct one once (`_Chain.to_json`)
+                table: dict = {}      # every chain's joint moves, each distinct one once (`_table_index`)
                 chains = {"version": sess.SESSION_VERSION, "names": list(self.names), "seed": self.seed,
                           "rounds": self._rounds, "next_id": self._next_id, "physics_steps": self._steps,
                           "n_events": len(self._events), "settings": settings,
                           "moves": self.moves_set, "warmup": self._warmup, "adapt_until": self._adapt_until,
                           "target_sweeps": self._target, "until": copy.deepcopy(self._until),
                           "chains": [copy.deepcopy(ch.to_json(table)) for _, ch in sorted(self._chains.items())]}
-                chains["move_table"] = [sess.move_to_json(m) for m in table]
+                chains["move_table"] = [sess.move_to_json(m) for _, m in table.values()]
                 self._dirty = False
             state = {"settings": settings, "events": events, "chains": chains, "record": record}
             try:
