@@ -745,9 +745,14 @@ def fitted_move(latents: Sequence[Latent], bounds: np.ndarray, chains: Sequence[
     return fit_independence(_warm_draws(chains, warmup), sites, _log_sites(latents, bounds, sites), bounds)
 
 
+def _warm_chains(chains: Sequence[np.ndarray], warmup: int) -> list[np.ndarray]:
+    """The second half of every chain's warm-up draws, a chain each: what the fitted moves are fitted to."""
+    return [np.asarray(c, float)[warmup // 2:warmup] for c in chains]
+
+
 def _warm_draws(chains: Sequence[np.ndarray], warmup: int) -> np.ndarray:
-    """The second half of every chain's warm-up draws, pooled: what the fitted moves are fitted to."""
-    return np.concatenate([np.asarray(c, float)[warmup // 2:warmup] for c in chains])
+    """`_warm_chains`, pooled."""
+    return np.concatenate(_warm_chains(chains, warmup))
 
 
 def fitted_kernel(latents: Sequence[Latent], bounds: np.ndarray, chains: Sequence[np.ndarray], warmup: int):
@@ -758,8 +763,7 @@ def fitted_kernel(latents: Sequence[Latent], bounds: np.ndarray, chains: Sequenc
     from .mcmc import fit_kernel
 
     sites = [j for j, lat in enumerate(latents) if not lat.integer]
-    return fit_kernel([np.asarray(c, float)[warmup // 2:warmup] for c in chains], sites,
-                      _log_sites(latents, bounds, sites), bounds)
+    return fit_kernel(_warm_chains(chains, warmup), sites, _log_sites(latents, bounds, sites), bounds)
 
 
 def fitted_marginals(latents: Sequence[Latent], bounds: np.ndarray, chains: Sequence[np.ndarray], warmup: int,
