@@ -121,6 +121,42 @@ def test_prefix_reuse_equals_a_full_simulation(demo):
     assert pos_p[1, -1, 0] - pos_p[1, 0, 0] > 0.01
 
 
+def test_k1_is_read_to_five_decimals_and_a_revisited_cell_resumes(demo):
+    """The simulator reads k1 to K1_DECIMALS (5) decimals: two k1 in one cell 1e-5 wide give
+    the same value, the next cell another, a k1 of five decimals is used as given (phase A's
+    prefix is keyed on it). A proposal to a cell visited before, with dozens of other cells
+    visited since (more than the 4 prefixes once kept), resumes where phase A ended instead of
+    sliding again, with the plain path's value bit for bit."""
+    from galileo.scenarios.ramp.likelihood import K1_DECIMALS, K1_PREFIXES
+
+    assert K1_DECIMALS == 5 and K1_PREFIXES >= 256
+    scene, tracks, x0 = demo
+    k1 = round(float(x0[1]), 5)
+    fast = VelocityLikelihood(scene, tracks, speedups=True)
+    plain = VelocityLikelihood(scene, tracks, speedups=False)
+
+    def at(k, masses=(1.0, 1.0, 1.0, 1.0)):
+        x = np.array(x0, float)
+        x[:4] *= masses
+        x[1] = k
+        return x
+
+    base = plain(at(k1))[0]
+    assert plain(at(k1 + 4.9e-6))[0] == base and plain(at(k1 - 4.9e-6))[0] == base
+    assert plain(at(k1 + 5.1e-6))[0] != base        # the next cell: another slide
+
+    assert fast(at(k1))[0] == base
+    assert (k1,) in fast._prefixes
+    first_b = fast._prefixes[(k1,)].first_b
+    for j in range(1, 41):                         # 40 other cells, each a slide of its own
+        fast(at(k1 + j * 1e-5))
+    spf = int(round(fast.scene.sim_hz / fast.fps))
+    x = at(k1 + 3e-6, (1.2, 1.0, 0.9, 1.1))
+    steps0 = fast.steps
+    assert fast(x)[0] == plain(x)[0]
+    assert fast.steps - steps0 <= spf * (fast.n_frames - first_b)   # resumed at the switch, no slide
+
+
 def _bullet_run(scene, values, n_frames, spf, switch_step=None, after=None, apart=False):
     """One Bullet run of the scene from t = 0 with `values`, driven step by step here (not
     through the likelihood): per frame, positions and velocities (O, F, 3), and at physics

@@ -61,6 +61,16 @@ slightly on its friction. tests/test_inference.py checks the motion bit for bit 
 Bullet runs with phase A's own values, and within the one-ulp bound against the
 proposal's.
 
+The simulator reads the ramp object's friction to K1_DECIMALS (5) decimal places: the
+likelihood at k1 is the one at round(k1, 5), in every path (the MH kernel's, `motion`'s), so
+the posterior density is constant on cells 1e-5 wide. That is 100 times finer than k1's
+posterior sd on a video (about 1e-3; a narrow mode's about 1e-4) and 20 times finer than the
+jaggedness Bullet's collisions put into the likelihood (10-16 nats between k1 values 2e-4
+apart), so it changes no posterior (BENCHMARKS.md: quantiles, SBC) while it lets the
+slide before the collision, which depends on k1 alone, be simulated once per cell and
+reused: a proposal to a k1 visited recently (K1_PREFIXES kept per process) resumes at the
+switch. A k1 given to 5 decimals or fewer (0.25, 0.21865) is used as given.
+
 The likelihood stands on `galileo.framelik.FrameLikelihood` (a tick is a video frame; the
 phases are its run, phase A branching into phase B at the switch), which owns the frame
 loop, the lock, `motion` and the exact speed-ups (`speedups=True`; each gives the same
@@ -75,9 +85,10 @@ every proposal):
   proposal's sigma (`rest_sum`; gaussian: -1/(2 sigma^2) times a sigma-free sum; student_t:
   computed once per sigma).
 * prefix reuse: a proposal with the k1 of a recent one (every proposal of m1, m2, k2,
-  e_collision and sigma) resumes from the snapshot at the switch, with the sigma-free
-  residuals of the frames up to there kept (each frame's state holds its residual) and
-  turned into terms for the proposal's sigma exactly as the plain path does at its switch.
+  e_collision and sigma, and one of k1 to a cell visited before) resumes from the snapshot
+  at the switch, with the sigma-free residuals of the frames up to there kept (each frame's
+  state holds its residual) and turned into terms for the proposal's sigma exactly as the
+  plain path does at its switch.
   Without a switch (no target, or the object stops short of it) the whole result depends
   only on k1 (and sigma): its residuals are reused whole.
 * run reuse (with the sigma latent): a proposal whose latents other than sigma are those of
@@ -109,6 +120,11 @@ SIGMA_LATENT = "log10_sigma_mps"   # the sigma latent (`Priors.infer_sigma`): si
 UNIT_MASS_KG = 1.0   # the masses phase A runs with (see VelocityLikelihood._phase_a_values)
 PHASE_A_TARGET_FRICTION = 1.0   # and the target's friction (it rests on the ground until hit)
 SWITCH_MARGIN_M = 0.01          # phase A ends this much before one frame's reach
+K1_DECIMALS = 5                 # the simulator reads k1 to this many decimals (see the module docstring)
+K1_PREFIXES = 2048              # slides (phase A, one per k1 cell) kept per process for prefix reuse (about 21 kB
+                                # each, 43 MB in all). On the demo a worker's 8 chains propose 1,400-3,000 cells after
+                                # the warm-up; a slide is simulated anew for 7% of proposals (10% with 1,024 kept,
+                                # 6% with 4,096)
 
 
 def scene_for_inference(scene: Scene, tracks: Tracks) -> Scene:
@@ -229,7 +245,7 @@ class VelocityLikelihood(FrameLikelihood):
     """Callable log-likelihood over the latent vector (in `names` order), for the MH kernel."""
 
     def __init__(self, scene: Scene, tracks: Tracks, sigma_mps: float = SIGMA_MPS, speedups: bool = True,
-                 cache_size: int = KEPT_PREFIXES):
+                 cache_size: int = K1_PREFIXES):
         # the fixed sigma (unused with the sigma latent): at least the noise the tracker measured on its own
         # tracks (a shaken, noisy or compressed video's), so that intervals widen instead of lying
         self.sigma_mps = max(check_sigma(sigma_mps), tracks.velocity_noise_mps())
@@ -240,7 +256,8 @@ class VelocityLikelihood(FrameLikelihood):
         # answered without physics is summed whole: its exact value, not a bound
         super().__init__(names, tracks.fps, tracks.n_frames, [o.name for o in self.scene.objects],
                          speedups=speedups, sim_latents=[n for n in names if n != SIGMA_LATENT],
-                         prefix_latents=["k1"], prefixes=cache_size, motions=4 * cache_size, whole_replays=True)
+                         prefix_latents=["k1"], prefixes=cache_size, motions=4 * min(cache_size, KEPT_PREFIXES),
+                         whole_replays=True)
         priors = self.scene.priors
         self.observation = priors.observation
         self.dof = priors.student_t_dof
@@ -290,6 +307,12 @@ class VelocityLikelihood(FrameLikelihood):
             while len(self._noises) > 8:
                 self._noises.popitem(last=False)
         return noise
+
+    def values_of(self, position) -> dict[str, float]:
+        """The latents by name, k1 as the simulator reads it: to K1_DECIMALS decimals."""
+        values = super().values_of(position)
+        values["k1"] = round(values["k1"], K1_DECIMALS)
+        return values
 
     def sigma_of(self, position) -> float:
         """The sigma (m/s) the likelihood uses at this latent vector."""
