@@ -324,7 +324,7 @@ class FrameLikelihood:
             if block is not None:
                 switch = run.branch(k, state)
                 if switch is not None:   # from tick k + 1 on, the run depends on all of sim_latents
-                    total = float(np.array(block).sum())
+                    total = float(np.array(block).sum()) + (pre if before else 0.0)   # as a resumed run sums
                     block = None
                     switch.first_b = branched = k + 1
                     if states is not None:

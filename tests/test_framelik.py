@@ -300,3 +300,37 @@ def test_the_bullet_lock_is_held_while_simulating(obs):
     lik(vec(TRUTH))
     lik.motion(vec({**TRUTH, "mu": 0.5}))
     assert lik.lock_seen_free and not any(lik.lock_seen_free)
+
+
+class HeldSlide(Slide):
+    """The slide filmed from before it starts: frames before tick 0 see the mass held at rest
+    at x = 0 (`before_start`), as the splash's frames before its drop see the object held."""
+
+    def before_start(self, values):
+        still = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+        return ((still,),), [((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))]
+
+
+def test_frames_before_the_run_starts_count_once_the_run_branches():
+    """A video that starts before the run: its first frames score the held state, and they
+    still count after the run passes the branch (where the terms before it are summed as one
+    block) on every path: fresh, plain, resumed at a kept branch, replayed whole. Against
+    Gaussian noise on Newton's slide, velocity 0 before tick 0."""
+    rng = np.random.default_rng(3)
+    values = dict(TRUTH, start_tick=-6.0)    # frames 0 and 1 at ticks -6 and -2: before the start
+    ticks = -6 + np.arange(N_FRAMES) * SPF
+    _, v = newton(values, np.maximum(ticks, 0))
+    v = np.where(ticks < 0, 0.0, v)
+    seen = np.ones(N_FRAMES, bool)
+    v_obs = v + rng.normal(0.0, 0.02, N_FRAMES)
+    fast, plain = HeldSlide(v_obs, seen), HeldSlide(v_obs, seen, speedups=False)
+    sigma = 10.0 ** values["log10_sigma_mps"]
+    for mu in (0.3, 0.5, 0.3):               # the third resumes at the first one's branch
+        point = dict(values, mu=mu)
+        _, v_mu = newton(point, np.maximum(ticks, 0))
+        r = v_obs - np.where(ticks < 0, 0.0, v_mu)
+        want = float(np.sum(-0.5 * (r / sigma) ** 2 - math.log(sigma * math.sqrt(2 * math.pi))))
+        assert abs(r[:2]).max() > 0.01      # the held frames' terms are not zero
+        for lik in (fast, plain):
+            assert lik(vec(point))[0] == pytest.approx(want, rel=1e-9)
+    assert fast(vec(dict(values, mu=0.5, log10_sigma_mps=-1.5)))[0] == plain(vec(dict(values, mu=0.5, log10_sigma_mps=-1.5)))[0]
