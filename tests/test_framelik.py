@@ -325,7 +325,7 @@ def test_frames_before_the_run_starts_count_once_the_run_branches():
     v_obs = v + rng.normal(0.0, 0.02, N_FRAMES)
     fast, plain = HeldSlide(v_obs, seen), HeldSlide(v_obs, seen, speedups=False)
     sigma = 10.0 ** values["log10_sigma_mps"]
-    for mu in (0.3, 0.5, 0.3):               # the third resumes at the first one's branch
+    for mu in (0.3, 0.5, 0.3):   # fresh; resumed at the first one's branch; the first one replayed
         point = dict(values, mu=mu)
         _, v_mu = newton(point, np.maximum(ticks, 0))
         r = v_obs - np.where(ticks < 0, 0.0, v_mu)
@@ -333,4 +333,5 @@ def test_frames_before_the_run_starts_count_once_the_run_branches():
         assert abs(r[:2]).max() > 0.01      # the held frames' terms are not zero
         for lik in (fast, plain):
             assert lik(vec(point))[0] == pytest.approx(want, rel=1e-9)
-    assert fast(vec(dict(values, mu=0.5, log10_sigma_mps=-1.5)))[0] == plain(vec(dict(values, mu=0.5, log10_sigma_mps=-1.5)))[0]
+    other_sigma = vec(dict(values, mu=0.5, log10_sigma_mps=-1.5))   # the second one replayed at another sigma
+    assert fast(other_sigma)[0] == plain(other_sigma)[0]
